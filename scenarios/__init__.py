@@ -1,0 +1,27 @@
+"""Scenario files (TOML) and their frozen, validated configuration dataclasses."""
+
+from scenarios.config import (
+    ActionConfig,
+    ArmConfig,
+    CameraConfig,
+    GoalsConfig,
+    NoiseConfig,
+    ObjectsConfig,
+    Scenario,
+    TableConfig,
+)
+from scenarios.loader import ScenarioError, list_scenarios, load_scenario
+
+__all__ = [
+    "ActionConfig",
+    "ArmConfig",
+    "CameraConfig",
+    "GoalsConfig",
+    "NoiseConfig",
+    "ObjectsConfig",
+    "Scenario",
+    "ScenarioError",
+    "TableConfig",
+    "list_scenarios",
+    "load_scenario",
+]

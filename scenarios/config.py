@@ -1,0 +1,114 @@
+"""Frozen dataclasses that describe a scenario: the world, its camera, its noise and its goals.
+
+Every field carries a one-line doc and its valid range in ``metadata``; ``scenarios.loader``
+checks a TOML file against them. Units are in the field names (``_m``, ``_deg``, ``_s``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+Pair = tuple[float, float]
+
+
+def spec(doc: str, **limits: Any) -> Any:
+    """A dataclass field with its doc and limits.
+
+    Args:
+        doc: one line saying what the field means.
+        limits: any of ``ge``, ``gt``, ``le`` (bounds on every number in the value),
+            ``ordered`` (a ``[lo, hi]`` pair or list of pairs must have lo <= hi),
+            ``choices`` (allowed strings), ``min_len``.
+    """
+    return field(metadata={"doc": doc, **limits})
+
+
+@dataclass(frozen=True)
+class TableConfig:
+    size_m: tuple[float, float] = spec("table top extent along world x and y", gt=0)
+    thickness_m: float = spec("table top thickness (its top face is the plane z = 0)", gt=0)
+    friction: float = spec("sliding friction coefficient of the table top", gt=0)
+
+
+@dataclass(frozen=True)
+class ArmConfig:
+    base_xy_m: tuple[float, float] = spec("base yaw joint position in the world frame")
+    shoulder_height_m: float = spec("height of the first pitch joint above the table", gt=0)
+    link_lengths_m: tuple[float, float] = spec("upper arm and forearm lengths", gt=0)
+    pusher_length_m: float = spec("length of the vertical cylindrical pusher", gt=0)
+    pusher_radius_m: float = spec("radius of the pusher", gt=0)
+    pusher_clearance_m: float = spec("gap between the pusher tip and the table", gt=0, le=0.02)
+    start_xy_m: tuple[float, float] = spec("pusher position at reset, world frame")
+    joint_limits_rad: tuple[Pair, Pair, Pair, Pair] = spec(
+        "[lo, hi] for base yaw, pitch 1, pitch 2, pitch 3", ordered=True
+    )
+    joint_speed_limit_rad_s: float = spec("joint velocity bound used by the IK controller", gt=0)
+    kp: float = spec("position gain of the joint servos (N m / rad)", gt=0)
+    kv: float = spec("velocity gain of the joint servos (N m s / rad)", ge=0)
+    controller_rate_hz: float = spec("rate at which the differential-IK QP is solved", gt=0)
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    position_m: tuple[float, float, float] = spec("camera centre, world frame")
+    target_m: tuple[float, float, float] = spec("point the optical axis passes through")
+    fovy_deg: float = spec("vertical field of view", gt=1, le=150)
+    width: int = spec("image width in pixels", ge=8, le=1024)
+    height: int = spec("image height in pixels", ge=8, le=1024)
+    max_depth_m: float = spec("rays longer than this hit nothing", gt=0)
+
+
+@dataclass(frozen=True)
+class ObjectsConfig:
+    count: tuple[int, int] = spec("[min, max] number of objects", ge=1, le=3, ordered=True)
+    shapes: tuple[str, ...] = spec("shapes to draw from", choices=("box", "cylinder"), min_len=1)
+    box_size_m: tuple[Pair, Pair, Pair] = spec(
+        "[lo, hi] full extents of a box along x, y, z", gt=0, ordered=True
+    )
+    cylinder_radius_m: tuple[float, float] = spec("[lo, hi] cylinder radius", gt=0, ordered=True)
+    cylinder_height_m: tuple[float, float] = spec("[lo, hi] cylinder height", gt=0, ordered=True)
+    mass_kg: tuple[float, float] = spec("[lo, hi] object mass", gt=0, ordered=True)
+    friction: tuple[float, float] = spec("[lo, hi] sliding friction", gt=0, ordered=True)
+    region_m: tuple[float, float, float, float] = spec(
+        "[x_min, x_max, y_min, y_max] where object centres are placed at reset"
+    )
+    min_gap_m: float = spec("clearance between objects, and to the pusher, at reset", ge=0)
+
+
+@dataclass(frozen=True)
+class ActionConfig:
+    max_speed_m_s: float = spec("bound on each of vx, vy of the pusher", gt=0, le=1.0)
+    dt_control_s: float = spec("how long one action is held (the paper's 0.15 s)", gt=0)
+    physics_dt_s: float = spec("MuJoCo timestep", gt=0, le=0.01)
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    depth_sd_m: float = spec("SD of Gaussian depth noise (0 = off)", ge=0)
+    depth_sd_scaled: bool = spec("scale the depth noise SD by the depth in metres")
+    assoc_window: int = spec("association noise window m (m x m pixels; 0 = off)", ge=0)
+    assoc_depth_threshold_m: float = spec("window targets must lie within this depth", gt=0)
+
+
+@dataclass(frozen=True)
+class GoalsConfig:
+    region_m: tuple[float, float, float, float] = spec(
+        "[x_min, x_max, y_min, y_max] where goal positions are drawn"
+    )
+    min_distance_m: float = spec("a goal is at least this far from the start ...", ge=0)
+    min_yaw_deg: float = spec("... or turned at least this much", ge=0, le=180)
+    max_distance_m: float = spec("and at most this far from the start", gt=0)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str = spec("identifier, the file's stem")
+    description: str = spec("one line for `se3push scenarios`")
+    table: TableConfig = spec("the table")
+    arm: ArmConfig = spec("the 4-joint arm and its pusher")
+    camera: CameraConfig = spec("the fixed depth camera")
+    objects: ObjectsConfig = spec("the free objects")
+    action: ActionConfig = spec("action bounds and timing")
+    noise: NoiseConfig = spec("sensor noise applied when data is read")
+    goals: GoalsConfig = spec("goal distribution for trials")

@@ -1,0 +1,319 @@
+"""The push world: a MuJoCo table top, an arm with a pusher, 1-3 free objects, a depth camera.
+
+``reset(seed)`` draws objects from the scenario and builds the model; ``step(action)`` holds a
+planar pusher velocity ``(vx, vy)`` for ``dt_control_s`` through the differential-IK
+controller and returns the next :class:`Observation`.
+
+Parts: every pixel is labelled with the rigid part it sees: ``-1`` nothing, ``0`` the static
+world (table), ``1`` the pusher, ``2 + i`` object ``i``. ``T_world_part (P,4,4)`` holds the
+parts' poses, so that targets after h steps follow exactly from the stored body-frame points.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from scenarios import Scenario
+from sim.camera import DepthCamera, associated_targets, invert, transform_by_part
+from sim.controller import PusherIK
+from sim.mjcf import ARM_JOINTS, PUSHER_BODY, PUSHER_SITE, ObjectSpec, build_mjcf, object_body
+
+PART_NONE, PART_STATIC, PART_PUSHER = -1, 0, 1
+FIRST_OBJECT_PART = 2
+MAX_PARTS = FIRST_OBJECT_PART + 3
+SETTLE_S = 0.1
+MAX_SPEED_STABLE_M_S = 5.0
+
+
+class ActionError(ValueError):
+    """An action was malformed, not finite, or outside the scenario's bounds."""
+
+
+class EpisodeEnded(RuntimeError):
+    """``step`` was called after the episode ended; call ``reset``."""
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What the world shows after a reset or a step."""
+
+    points_cam: np.ndarray
+    """(3,H,W) float64, the organised cloud in the camera frame (m); zero where invalid."""
+    valid: np.ndarray
+    """(H,W) bool, pixels whose ray hit something."""
+    part: np.ndarray
+    """(H,W) int8, the part each pixel sees (see module doc)."""
+    points_part: np.ndarray
+    """(3,H,W) float64, each pixel's point in its part's frame (for associations)."""
+    T_world_part: np.ndarray
+    """(P,4,4) poses of the parts, P = 2 + number of objects."""
+    object_poses: np.ndarray
+    """(n,3) planar pose (x_m, y_m, yaw_rad) of each object."""
+    pusher_xy_m: np.ndarray
+    """(2,) pusher tip position in the world frame."""
+    joint_pos_rad: np.ndarray
+    """(4,) arm joint angles."""
+    joint_vel_rad_s: np.ndarray
+    """(4,) arm joint velocities."""
+    time_s: float
+    done: bool
+    """The episode has ended; ``reason`` says why."""
+    reason: str
+    """``""``, ``"object_off_table"`` or ``"unstable"``."""
+
+
+def yaw_of(R: np.ndarray) -> float:
+    """Heading of a rotation matrix's x axis in the world xy plane."""
+    return math.atan2(R[1, 0], R[0, 0])
+
+
+def planar_arm_ik(scenario: Scenario, xy_m: tuple[float, float] | np.ndarray) -> np.ndarray:
+    """Joint angles (4,) that put the pusher tip at ``xy_m`` at its working height, vertical,
+    elbow up. Raises ValueError if the point is out of reach."""
+    a = scenario.arm
+    l1, l2 = a.link_lengths_m
+    dx, dy = xy_m[0] - a.base_xy_m[0], xy_m[1] - a.base_xy_m[1]
+    r = math.hypot(dx, dy)
+    down = a.shoulder_height_m - (a.pusher_clearance_m + a.pusher_length_m)  # wrist below shoulder
+    c2 = (r * r + down * down - l1 * l1 - l2 * l2) / (2 * l1 * l2)
+    if not -1.0 <= c2 <= 1.0:
+        raise ValueError(f"pusher position {tuple(xy_m)} is out of the arm's reach")
+    p2 = math.acos(c2)
+    p1 = math.atan2(down, r) - math.atan2(l2 * math.sin(p2), l1 + l2 * math.cos(p2))
+    return np.array([math.atan2(dy, dx), p1, p2, -(p1 + p2)])
+
+
+class PushWorld:
+    """A scenario's world. Not thread-safe; make one per worker.
+
+    Args:
+        scenario: the scenario to simulate.
+        width, height: camera resolution override (defaults to the scenario's).
+    """
+
+    def __init__(self, scenario: Scenario, *, width: int | None = None, height: int | None = None):
+        self.scenario = scenario
+        self.camera = DepthCamera(scenario.camera, width=width, height=height)
+        self.n_substeps = max(1, round(scenario.action.dt_control_s / scenario.action.physics_dt_s))
+        self.ctrl_every = max(
+            1, round(1.0 / (scenario.arm.controller_rate_hz * scenario.action.physics_dt_s))
+        )
+        self.model: mujoco.MjModel | None = None
+        self.data: mujoco.MjData | None = None
+        self.objects: list[ObjectSpec] = []
+        self.qp_failures = 0
+
+    # ------------------------------------------------------------------ reset
+    def reset(self, seed: int | np.random.Generator) -> Observation:
+        """Start an episode: draw objects and their poses, build the model, settle.
+
+        Args:
+            seed: an int or a generator; the same seed gives the same episode.
+        """
+        rng = np.random.default_rng(seed)
+        n_lo, n_hi = self.scenario.objects.count
+        self.objects = [self._draw_object(rng) for _ in range(int(rng.integers(n_lo, n_hi + 1)))]
+        poses = self._place_objects(rng)
+        self._build(poses)
+        return self.observe()
+
+    def _draw_object(self, rng: np.random.Generator) -> ObjectSpec:
+        o = self.scenario.objects
+        shape = o.shapes[int(rng.integers(len(o.shapes)))]
+        if shape == "box":
+            size = tuple(float(rng.uniform(lo, hi)) for lo, hi in o.box_size_m)
+        else:
+            d = 2 * float(rng.uniform(*o.cylinder_radius_m))
+            size = (d, d, float(rng.uniform(*o.cylinder_height_m)))
+        return ObjectSpec(
+            shape=shape,
+            size_m=size,
+            mass_kg=float(rng.uniform(*o.mass_kg)),
+            friction=float(rng.uniform(*o.friction)),
+        )
+
+    def _place_objects(self, rng: np.random.Generator) -> list[tuple[float, float, float]]:
+        o, a = self.scenario.objects, self.scenario.arm
+        x0, x1, y0, y1 = o.region_m
+        for _ in range(1000):
+            poses: list[tuple[float, float, float]] = []
+            for obj in self.objects:
+                x, y = rng.uniform(x0, x1), rng.uniform(y0, y1)
+                yaw = rng.uniform(-math.pi, math.pi)
+                clear_pusher = math.hypot(x - a.start_xy_m[0], y - a.start_xy_m[1]) > (
+                    obj.footprint_radius_m + a.pusher_radius_m + o.min_gap_m
+                )
+                clear_objects = all(
+                    math.hypot(x - px, y - py)
+                    > obj.footprint_radius_m + other.footprint_radius_m + o.min_gap_m
+                    for (px, py, _), other in zip(poses, self.objects, strict=False)
+                )
+                if not (clear_pusher and clear_objects):
+                    break
+                poses.append((float(x), float(y), float(yaw)))
+            if len(poses) == len(self.objects):
+                return poses
+        raise ValueError(
+            f"scenario {self.scenario.name}: could not place {len(self.objects)} objects without "
+            "overlap in objects.region_m; enlarge the region or lower objects.min_gap_m"
+        )
+
+    def _build(self, poses: list[tuple[float, float, float]]) -> None:
+        s = self.scenario
+        self.model = mujoco.MjModel.from_xml_string(build_mjcf(s, self.objects))
+        self.data = mujoco.MjData(self.model)
+        m, d = self.model, self.data
+        joint_ids = np.array([m.joint(n).id for n in ARM_JOINTS])
+        self._arm_qpos = m.jnt_qposadr[joint_ids]
+        self._arm_dof = m.jnt_dofadr[joint_ids]
+        self._part_bodies = np.array(
+            [0, m.body(PUSHER_BODY).id] + [m.body(object_body(i)).id for i in range(len(poses))]
+        )
+        # part of every body: static 0, pusher 1, object i 2+i; arm links -> pusher (hidden anyway)
+        self._body_part = np.zeros(m.nbody, np.int8)
+        self._body_part[self._part_bodies[1:]] = np.arange(1, len(self._part_bodies))
+        self._geom_part = self._body_part[m.geom_bodyid]
+        obj_joints = [m.joint(object_body(i)).id for i in range(len(poses))]
+        self._obj_qpos = m.jnt_qposadr[obj_joints]
+        self._obj_dof = m.jnt_dofadr[obj_joints]
+        self._pusher_site = m.site(PUSHER_SITE).id
+        for adr, (x, y, yaw), obj in zip(self._obj_qpos, poses, self.objects, strict=True):
+            d.qpos[adr : adr + 7] = [
+                x,
+                y,
+                obj.size_m[2] / 2,
+                math.cos(yaw / 2),
+                0,
+                0,
+                math.sin(yaw / 2),
+            ]
+        q0 = planar_arm_ik(s, s.arm.start_xy_m)
+        d.qpos[self._arm_qpos] = q0
+        self._q_ref = q0.copy()
+        d.ctrl[:] = q0
+        self.controller = PusherIK(
+            m,
+            joint_ids=joint_ids,
+            site_id=self._pusher_site,
+            height_m=s.arm.pusher_clearance_m,
+            joint_limits=np.array(s.arm.joint_limits_rad),
+            speed_limit=s.arm.joint_speed_limit_rad_s,
+            dt=self.ctrl_every * s.action.physics_dt_s,
+        )
+        self.qp_failures = 0
+        self._done, self._reason = False, ""
+        mujoco.mj_forward(m, d)
+        self._advance(np.zeros(2), round(SETTLE_S / s.action.physics_dt_s))
+        d.time = 0.0
+
+    # ------------------------------------------------------------------- step
+    def check_action(self, action: np.ndarray) -> np.ndarray:
+        """The action as a float array (2,), or an :class:`ActionError` saying what is wrong."""
+        a = np.asarray(action, dtype=float)
+        bound = self.scenario.action.max_speed_m_s
+        if a.shape != (2,):
+            raise ActionError(
+                f"an action is a planar pusher velocity (vx, vy); got shape {a.shape}"
+            )
+        if not np.all(np.isfinite(a)):
+            raise ActionError(f"action {a.tolist()} is not finite")
+        if np.any(np.abs(a) > bound + 1e-9):
+            raise ActionError(
+                f"action {a.tolist()} m/s is outside the bounds ±{bound} m/s per axis "
+                f"(scenario {self.scenario.name}: action.max_speed_m_s); clip it first"
+            )
+        return a
+
+    def step(self, action: np.ndarray) -> Observation:
+        """Hold the pusher velocity ``action`` (vx, vy; m/s, world frame) for one control step.
+
+        Raises:
+            ActionError: the action is malformed, not finite or out of bounds.
+            EpisodeEnded: the episode has already ended.
+        """
+        a = self.check_action(action)
+        if self.model is None:
+            raise EpisodeEnded("no episode yet: call reset(seed) first")
+        if self._done:
+            raise EpisodeEnded(f"the episode ended ({self._reason}); call reset(seed)")
+        self._advance(a, self.n_substeps)
+        self._check_end()
+        return self.observe()
+
+    def _advance(self, v_xy: np.ndarray, n_steps: int) -> None:
+        m, d = self.model, self.data
+        for i in range(n_steps):
+            if i % self.ctrl_every == 0:
+                self._q_ref = self.controller.servo_targets(d, self._q_ref, v_xy)
+                d.ctrl[:] = self._q_ref
+            mujoco.mj_step(m, d)
+        self.qp_failures = self.controller.failures
+        mujoco.mj_kinematics(m, d)
+
+    def _check_end(self) -> None:
+        d = self.data
+        if not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))) or np.any(
+            np.abs(d.qvel) > 50.0
+        ):
+            self._done, self._reason = True, "unstable"
+            return
+        sx, sy = self.scenario.table.size_m
+        for adr in self._obj_qpos:
+            x, y, z = d.qpos[adr : adr + 3]
+            if abs(x) > sx / 2 or abs(y) > sy / 2 or z < 0:
+                self._done, self._reason = True, "object_off_table"
+                return
+        for adr in self._obj_dof:
+            if np.linalg.norm(d.qvel[adr : adr + 3]) > MAX_SPEED_STABLE_M_S:
+                self._done, self._reason = True, "unstable"
+                return
+
+    # ---------------------------------------------------------------- observe
+    def part_poses(self) -> np.ndarray:
+        """(P,4,4) current poses of the parts (static, pusher, objects) in the world frame."""
+        d = self.data
+        T = np.tile(np.eye(4), (len(self._part_bodies), 1, 1))
+        T[:, :3, :3] = d.xmat[self._part_bodies].reshape(-1, 3, 3)
+        T[:, :3, 3] = d.xpos[self._part_bodies]
+        return T
+
+    def observe(self) -> Observation:
+        """Render the camera and read the state (no simulation)."""
+        m, d = self.model, self.data
+        frame = self.camera.render(m, d)
+        part = np.where(frame.valid, self._geom_part[np.clip(frame.geom_id, 0, None)], PART_NONE)
+        part = part.astype(np.int8)
+        T_world_part = self.part_poses()
+        # each point in its part's frame: p_part = T_part_world · T_world_cam · p_cam
+        T_part_cam = invert(T_world_part) @ self.camera.T_world_cam
+        points_part = transform_by_part(frame.points_cam, part, T_part_cam)
+        poses = np.array(
+            [
+                [*T_world_part[k, :2, 3], yaw_of(T_world_part[k, :3, :3])]
+                for k in range(2, len(T_world_part))
+            ]
+        ).reshape(-1, 3)
+        return Observation(
+            points_cam=frame.points_cam,
+            valid=frame.valid,
+            part=part,
+            points_part=points_part,
+            T_world_part=T_world_part,
+            object_poses=poses,
+            pusher_xy_m=d.site_xpos[self._pusher_site, :2].copy(),
+            joint_pos_rad=d.qpos[self._arm_qpos].copy(),
+            joint_vel_rad_s=d.qvel[self._arm_dof].copy(),
+            time_s=float(d.time),
+            done=self._done,
+            reason=self._reason,
+        )
+
+    def targets(self, obs: Observation, later: Observation) -> np.ndarray:
+        """Exact targets (3,H,W) of ``obs``'s pixels at the time of ``later``."""
+        return associated_targets(
+            obs.points_part, obs.part, later.T_world_part, self.camera.T_cam_world
+        )

@@ -1,0 +1,27 @@
+"""Shared fixtures: tiny scenarios and worlds."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from scenarios import Scenario, load_scenario
+from sim import PushWorld
+
+
+@pytest.fixture(scope="session")
+def tiny() -> Scenario:
+    return load_scenario("tiny")
+
+
+@pytest.fixture
+def tiny_world(tiny: Scenario) -> PushWorld:
+    return PushWorld(tiny)
+
+
+def with_fields(scenario: Scenario, section: str, **changes) -> Scenario:
+    """A copy of ``scenario`` with fields of one section replaced."""
+    return dataclasses.replace(
+        scenario, **{section: dataclasses.replace(getattr(scenario, section), **changes)}
+    )

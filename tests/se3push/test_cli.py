@@ -1,0 +1,55 @@
+import json
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from se3push.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_scenarios_lists_each_with_a_description(capsys):
+    assert main(["scenarios"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    names = {line.split()[0] for line in lines}
+    assert {"single_box", "multi_object", "tiny"} <= names
+    assert all(len(line.split(maxsplit=1)[1]) > 10 for line in lines)
+
+
+def test_render_writes_a_png_showing_object_flow(tmp_path, capsys):
+    out = tmp_path / "scene.png"
+    assert main(["render", "--scenario", "tiny", "--seed", "3", "--out", str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    text = capsys.readouterr().out
+    flow_mm = float(text.split("max flow ")[1].split(" mm")[0])
+    assert flow_mm > 1.0  # the push reached the object and the flow shows it
+
+
+def test_unknown_scenario_is_exit_code_2_with_the_known_ones(tmp_path, capsys):
+    assert main(["render", "--scenario", "nope", "--out", str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err
+    assert "unknown scenario 'nope'" in err and "single_box" in err
+
+
+def test_bench_world_writes_the_named_figures(tmp_path):
+    path = tmp_path / "bench.json"
+    assert main(["bench", "world", "--repeats", "1", "--json", str(path)]) == 0
+    figures = json.loads(path.read_text())
+    assert set(figures) == {"camera_fps_64x64", "camera_fps_240x320", "control_steps_per_s"}
+    assert figures["camera_fps_64x64"] > figures["camera_fps_240x320"] > 0
+
+
+def test_wheel_carries_the_scenario_files(tmp_path):
+    pytest.importorskip("setuptools")
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
+         "-w", str(tmp_path), str(ROOT)],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    (wheel,) = tmp_path.glob("se3push-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    for stem in ("single_box", "multi_object", "tiny"):
+        assert f"scenarios/{stem}.toml" in names
