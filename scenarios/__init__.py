@@ -10,7 +10,7 @@ from scenarios.config import (
     Scenario,
     TableConfig,
 )
-from scenarios.loader import ScenarioError, list_scenarios, load_scenario
+from scenarios.loader import ScenarioError, list_scenarios, load_scenario, scenario_from_dict
 
 __all__ = [
     "ActionConfig",
@@ -24,4 +24,5 @@ __all__ = [
     "TableConfig",
     "list_scenarios",
     "load_scenario",
+    "scenario_from_dict",
 ]

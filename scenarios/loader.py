@@ -46,6 +46,12 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     return _build(Scenario, table, where, "")
 
 
+def scenario_from_dict(table: dict[str, Any], *, where: str = "stored scenario") -> Scenario:
+    """Rebuild (and validate) a scenario from ``dataclasses.asdict`` output, e.g. the copy a
+    dataset manifest or a checkpoint keeps."""
+    return _build(Scenario, table, where, "")
+
+
 def _read(name_or_path: str | Path) -> tuple[str, str, str]:
     path = Path(name_or_path)
     if path.suffix == ".toml" or path.exists():

@@ -50,7 +50,32 @@ def bench_world(*, repeats: int) -> dict[str, float]:
     return out
 
 
-BENCHES: dict[str, Callable[..., dict[str, float]]] = {"world": bench_world}
+def bench_data(*, repeats: int) -> dict[str, float]:
+    """Examples/s of ``se3push data`` with 1 and 2 workers (24 episodes of 20 steps on
+    ``single_box`` at 64x64, process start-up included), and stored bytes per example."""
+    import tempfile
+
+    from sim.dataset import DataConfig, generate
+
+    cfg = DataConfig("single_box", episodes=24, episodes_per_shard=6)
+    out: dict[str, float] = {}
+    runs = max(1, min(repeats, 3))
+    for workers in (1, 2):
+        times, sizes = [], []
+        for _ in range(runs):
+            with tempfile.TemporaryDirectory() as tmp:
+                t0 = time.perf_counter()
+                manifest = generate(cfg, tmp, workers=workers, progress=False)
+                times.append(time.perf_counter() - t0)
+                sizes.append(sum(p.stat().st_size for p in Path(tmp).glob("shard_*.npz")))
+        examples = manifest["stats"]["examples"]
+        key = "1_worker" if workers == 1 else f"{workers}_workers"
+        out[f"examples_per_s_{key}"] = examples / float(np.median(times))
+    out["bytes_per_example"] = float(np.median(sizes)) / examples
+    return out
+
+
+BENCHES: dict[str, Callable[..., dict[str, float]]] = {"world": bench_world, "data": bench_data}
 
 
 def run_bench(what: str, *, repeats: int, json_path: str | None) -> dict[str, float]:

@@ -38,6 +38,33 @@ def _cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_data(args: argparse.Namespace) -> int:
+    if args.inspect:
+        from se3push.report import inspect_data
+
+        print(inspect_data(args.inspect))
+        return 0
+    from sim.dataset import DataConfig, generate
+    from sim.datastore import summarize
+
+    if args.episodes is None:
+        raise ValueError("--episodes is required to generate data (or give --inspect DIR)")
+    cfg = DataConfig(
+        scenario=args.scenario,
+        episodes=args.episodes,
+        steps_per_episode=args.steps_per_episode,
+        seed=args.seed,
+    )
+    manifest = generate(cfg, args.out, workers=args.workers)
+    st = summarize(manifest)
+    print(
+        f"wrote {args.out}: {st['episodes']} episodes, {st['examples']} examples, "
+        f"object moves in {st['object_motion_fraction']:.1%}; inspect with "
+        f"`se3push data --inspect {args.out}`"
+    )
+    return 0
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     from se3push.bench import run_bench
 
@@ -58,8 +85,18 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="scene.png", help="PNG path")
     s.set_defaults(run=_cmd_render)
 
+    s = sub.add_parser("data", help="generate training episodes, or --inspect a dataset")
+    s.add_argument("--scenario", default="single_box", help="scenario name or TOML path")
+    s.add_argument("--episodes", type=int, help="number of episodes to generate")
+    s.add_argument("--out", default="data/single_box", help="dataset folder")
+    s.add_argument("--workers", type=int, default=1, help="processes (same bytes for any number)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--steps-per-episode", type=int, default=20, help="actions per episode")
+    s.add_argument("--inspect", metavar="DIR", help="print a dataset's manifest and statistics")
+    s.set_defaults(run=_cmd_data)
+
     s = sub.add_parser("bench", help="time the hot paths (medians over repeats)")
-    s.add_argument("what", choices=["world"], help="which benchmark")
+    s.add_argument("what", choices=["world", "data"], help="which benchmark")
     s.add_argument("--repeats", type=int, default=20, help="timed repeats per figure")
     s.add_argument("--json", default=None, metavar="PATH", help="also write the figures as JSON")
     s.set_defaults(run=_cmd_bench)

@@ -14,6 +14,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from scenarios import Scenario
 
 ARM_JOINTS = ("yaw", "pitch1", "pitch2", "pitch3")
@@ -33,6 +35,13 @@ class ObjectSpec:
     """Full extents along the object's x, y, z (a cylinder: 2r, 2r, height)."""
     mass_kg: float
     friction: float
+
+    def distance_to_footprint_m(self, xy_obj: np.ndarray) -> float:
+        """Distance from a point ``(2,)`` in the object's frame to its footprint (0 inside)."""
+        if self.shape == "box":
+            gap = np.abs(xy_obj) - np.array(self.size_m[:2]) / 2
+            return float(np.linalg.norm(np.maximum(gap, 0.0)))
+        return max(0.0, float(np.linalg.norm(xy_obj)) - self.size_m[0] / 2)
 
     @property
     def footprint_radius_m(self) -> float:

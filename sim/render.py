@@ -1,13 +1,15 @@
-"""A look at the world: depth, segmentation and one step's ground-truth flow, as a PNG."""
+"""Pictures people would rather see than read: depth, segmentation and true flow, as PNGs."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from scenarios import load_scenario
-from sim.world import Observation, PushWorld
+from sim.camera import DepthCamera
+from sim.world import MAX_PARTS, Observation, PushWorld
 
 MOVED_M = 1e-3
 
@@ -17,9 +19,69 @@ def push_toward_object(world: PushWorld, obs: Observation, rng: np.random.Genera
     a random speed between half and full bound."""
     target = obs.object_poses[int(rng.integers(len(obs.object_poses))), :2]
     heading = np.arctan2(*(target - obs.pusher_xy_m)[::-1]) + rng.normal(0.0, 0.15)
-    speed = world.scenario.action.max_speed_m_s * rng.uniform(0.5, 1.0)
     bound = world.scenario.action.max_speed_m_s
+    speed = bound * rng.uniform(0.5, 1.0)
     return np.clip(speed * np.array([np.cos(heading), np.sin(heading)]), -bound, bound)
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def draw_example(
+    fig: Any,
+    axes: Any,
+    camera: DepthCamera,
+    points: np.ndarray,
+    part: np.ndarray,
+    flow: np.ndarray,
+    title: str,
+) -> None:
+    """Depth, segmentation and true flow of one example on three axes.
+
+    Args:
+        points: (3,H,W) input cloud, camera frame; part: (H,W) part labels (-1 none);
+        flow: (3,H,W) true flow (target - input), metres.
+    """
+    plt = _pyplot()
+    valid = part >= 0
+    im = axes[0].imshow(np.where(valid, points[2], np.nan), cmap="viridis")
+    fig.colorbar(im, ax=axes[0], label="depth (m)")
+    axes[0].set_title(title)
+    labels = ["none", "static", "pusher"] + [f"object {i}" for i in range(MAX_PARTS - 2)]
+    cmap = plt.get_cmap("tab10", len(labels))
+    im = axes[1].imshow(part.astype(int) + 1, cmap=cmap, vmin=-0.5, vmax=len(labels) - 0.5)
+    cb = fig.colorbar(im, ax=axes[1], ticks=range(len(labels)))
+    cb.ax.set_yticklabels(labels)
+    axes[1].set_title("segmentation (part hit by each ray)")
+    flow_mm = np.where(valid, np.linalg.norm(flow, axis=0) * 1e3, np.nan)
+    im = axes[2].imshow(flow_mm, cmap="magma")
+    fig.colorbar(im, ax=axes[2], label="|flow| (mm)")
+    uv0 = camera.project(np.moveaxis(points, 0, -1))
+    uv1 = camera.project(np.moveaxis(points + flow, 0, -1))
+    every = max(1, camera.width // 32)
+    grid = np.add.outer(np.arange(part.shape[0]), np.arange(part.shape[1])) % every == 0
+    sel = valid & (np.nan_to_num(flow_mm) > 1.0) & grid
+    d = uv1[sel] - uv0[sel]
+    axes[2].quiver(uv0[sel][:, 0] - 0.5, uv0[sel][:, 1] - 0.5, d[:, 0], d[:, 1], color="cyan",
+                   angles="xy", scale_units="xy", scale=0.5, width=0.004)  # fmt: skip
+    axes[2].set_title("true flow (arrows x2)")
+    for a in axes:
+        a.set_xticks([])
+        a.set_yticks([])
+
+
+def save_figure(fig: Any, out: str | Path) -> None:
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(out, dpi=100)
+    _pyplot().close(fig)
 
 
 def render_scene(scenario: str, seed: int, out: str | Path, *, max_steps: int = 40) -> dict:
@@ -29,55 +91,54 @@ def render_scene(scenario: str, seed: int, out: str | Path, *, max_steps: int = 
     Returns:
         a summary: steps taken, pixels per part, max flow (m) of the shown step.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     world = PushWorld(load_scenario(scenario))
     rng = np.random.default_rng(seed)
-    obs = world.reset(rng)
-    before, after = obs, obs
+    before = after = world.reset(rng)
     for step in range(1, max_steps + 1):  # noqa: B007 (step is reported below)
         before, after = after, world.step(push_toward_object(world, after, rng))
         moved = np.linalg.norm(after.object_poses[:, :2] - before.object_poses[:, :2], axis=1)
         if after.done or moved.max() > MOVED_M:
             break
-    flow = world.targets(before, after) - before.points_cam  # (3,H,W)
-    flow_mm = np.linalg.norm(flow, axis=0) * 1e3
-    flow_mm[~before.valid] = np.nan
+    flow = world.targets(before, after) - before.points_cam
+    fig, axes = _pyplot().subplots(1, 3, figsize=(13, 4.4))
+    title = f"{scenario} seed {seed}, step {step}"
+    draw_example(fig, axes, world.camera, before.points_cam, before.part, flow, title)
+    save_figure(fig, out)
+    names = ["none", "static", "pusher"] + [f"object {i}" for i in range(len(world.objects))]
+    counts = {name: int((before.part == k - 1).sum()) for k, name in enumerate(names)}
+    valid_flow = np.linalg.norm(flow, axis=0)[before.valid]
+    return {"steps": step, "pixels": counts, "max_flow_m": float(valid_flow.max())}
 
-    fig, ax = plt.subplots(1, 3, figsize=(13, 4.4))
-    depth = np.where(before.valid, before.points_cam[2], np.nan)
-    im = ax[0].imshow(depth, cmap="viridis")
-    fig.colorbar(im, ax=ax[0], label="depth (m)")
-    ax[0].set_title(f"depth, {scenario} seed {seed}")
-    labels = ["none", "static", "pusher"] + [f"object {i}" for i in range(len(obs.object_poses))]
-    cmap = plt.get_cmap("tab10", len(labels))
-    im = ax[1].imshow(before.part.astype(int) + 1, cmap=cmap, vmin=-0.5, vmax=len(labels) - 0.5)
-    cb = fig.colorbar(im, ax=ax[1], ticks=range(len(labels)))
-    cb.ax.set_yticklabels(labels)
-    ax[1].set_title("segmentation (part hit by each ray)")
-    im = ax[2].imshow(flow_mm, cmap="magma")
-    fig.colorbar(im, ax=ax[2], label="|flow| (mm)")
-    uv0 = world.camera.project(np.moveaxis(before.points_cam, 0, -1))
-    uv1 = world.camera.project(np.moveaxis(before.points_cam + flow, 0, -1))
-    moving = before.valid & (np.nan_to_num(flow_mm) > 1.0)
-    step_px = max(1, world.camera.width // 32)
-    sel = moving & (
-        np.add.outer(np.arange(moving.shape[0]), np.arange(moving.shape[1])) % step_px == 0
+
+def dataset_examples_png(root: str | Path, out: str | Path, *, n: int = 4, seed: int = 0) -> list:
+    """Write ``n`` examples of a dataset (drawn among those where an object moves) as rows of
+    depth, segmentation and true one-step flow. Returns the (episode, t) shown."""
+    from sim.datastore import frame_cloud, load_episodes, read_manifest, scenario_of
+
+    camera = DepthCamera(scenario_of(read_manifest(root)).camera)
+    eps = load_episodes(root, verify=False)
+    a = eps.arrays
+    moving = [
+        (e, t)
+        for e in range(min(len(eps.index), 60))
+        for t in range(int(a["length"][e]))
+        if np.linalg.norm(
+            a["object_poses"][e, t + 1, :, :2] - a["object_poses"][e, t, :, :2], axis=1
+        ).max()
+        > MOVED_M
+    ]
+    rng = np.random.default_rng(seed)
+    picks = [
+        moving[i] for i in sorted(rng.choice(len(moving), size=min(n, len(moving)), replace=False))
+    ]
+    fig, axes = _pyplot().subplots(
+        max(len(picks), 1), 3, figsize=(13, 4.2 * max(len(picks), 1)), squeeze=False
     )
-    d = uv1[sel] - uv0[sel]
-    ax[2].quiver(uv0[sel][:, 0] - 0.5, uv0[sel][:, 1] - 0.5, d[:, 0], d[:, 1], color="cyan",
-                 angles="xy", scale_units="xy", scale=0.5, width=0.004)  # fmt: skip
-    ax[2].set_title(f"true flow, step {step} (arrows x2)")
-    for a in ax:
-        a.set_xticks([])
-        a.set_yticks([])
-    fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    counts = {name: int((before.part == k - 1).sum()) for k, name in enumerate(labels)}
-    return {"steps": step, "pixels": counts, "max_flow_m": float(np.nanmax(flow_mm) / 1e3)}
+    for row, (e, t) in zip(axes, picks, strict=False):
+        points = frame_cloud(a, e, t, camera.T_cam_world)
+        flow = frame_cloud(a, e, t, camera.T_cam_world, at=t + 1) - points
+        draw_example(
+            fig, row, camera, points, a["part"][e, t], flow, f"episode {int(eps.index[e])}, t = {t}"
+        )
+    save_figure(fig, out)
+    return [(int(eps.index[e]), t) for e, t in picks]

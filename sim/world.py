@@ -210,6 +210,30 @@ class PushWorld:
         self._advance(np.zeros(2), round(SETTLE_S / s.action.physics_dt_s))
         d.time = 0.0
 
+    def teleport_pusher(self, xy_m: np.ndarray) -> Observation:
+        """Put the arm, at rest, in the configuration that holds the pusher at ``xy_m``.
+
+        Meant for the start of an episode (data generation starts pushes near the objects);
+        the objects are not touched. Raises ValueError if ``xy_m`` is out of reach or
+        overlaps an object.
+        """
+        if self.model is None:
+            raise EpisodeEnded("no episode yet: call reset(seed) first")
+        xy = np.asarray(xy_m, dtype=float)
+        obs = self.observe()
+        for (x, y, yaw), obj in zip(obs.object_poses, self.objects, strict=True):
+            c, s = math.cos(yaw), math.sin(yaw)
+            local = np.array([[c, s], [-s, c]]) @ (xy - [x, y])
+            if obj.distance_to_footprint_m(local) < self.scenario.arm.pusher_radius_m:
+                raise ValueError(f"pusher position {xy.tolist()} overlaps an object at {x, y}")
+        q = planar_arm_ik(self.scenario, xy)
+        self.data.qpos[self._arm_qpos] = q
+        self.data.qvel[self._arm_dof] = 0.0
+        self._q_ref = q.copy()
+        self.data.ctrl[:] = q
+        mujoco.mj_forward(self.model, self.data)
+        return self.observe()
+
     # ------------------------------------------------------------------- step
     def check_action(self, action: np.ndarray) -> np.ndarray:
         """The action as a float array (2,), or an :class:`ActionError` saying what is wrong."""

@@ -53,3 +53,64 @@ def test_wheel_carries_the_scenario_files(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     for stem in ("single_box", "multi_object", "tiny"):
         assert f"scenarios/{stem}.toml" in names
+
+
+def test_data_generates_and_inspects(tmp_path, capsys):
+    out = tmp_path / "data"
+    args = [
+        "data",
+        "--scenario",
+        "tiny",
+        "--episodes",
+        "3",
+        "--steps-per-episode",
+        "4",
+        "--out",
+        str(out),
+    ]
+    assert main(args) == 0
+    assert "3 episodes" in capsys.readouterr().out
+    assert main(["data", "--inspect", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "no-motion MSE" in text and "object moves" in text and "policy mixture" in text
+    assert (out / "inspect.png").read_bytes()[:4] == b"\x89PNG"
+    # the same command again finds everything done; another seed is refused
+    assert main(args) == 0
+    assert main([*args, "--seed", "5"]) == 2
+    assert "holds a different dataset" in capsys.readouterr().err
+
+
+def test_data_bad_input_is_exit_code_2(tmp_path, capsys):
+    assert main(["data", "--scenario", "tiny", "--out", str(tmp_path / "d")]) == 2
+    assert "--episodes is required" in capsys.readouterr().err
+    assert main(["data", "--inspect", str(tmp_path)]) == 2
+    assert "not a dataset folder" in capsys.readouterr().err
+    assert (
+        main(
+            [
+                "data",
+                "--scenario",
+                "tiny",
+                "--episodes",
+                "2",
+                "--workers",
+                "0",
+                "--out",
+                str(tmp_path / "w"),
+            ]
+        )
+        == 2
+    )
+    assert "--workers must be at least 1" in capsys.readouterr().err
+
+
+def test_bench_data_writes_the_named_figures(tmp_path):
+    path = tmp_path / "bench.json"
+    assert main(["bench", "data", "--repeats", "1", "--json", str(path)]) == 0
+    figures = json.loads(path.read_text())
+    assert set(figures) == {
+        "examples_per_s_1_worker",
+        "examples_per_s_2_workers",
+        "bytes_per_example",
+    }
+    assert all(v > 0 for v in figures.values())

@@ -1,0 +1,340 @@
+"""Training data: exploration episodes with exact point associations, in shards.
+
+``generate(cfg, out_dir)`` runs episodes of the exploration policy and stores, per frame, what
+targets for any horizon need: the part each pixel sees, each point in its part's frame
+(float16: under 0.13 mm of error for points within 0.5 m of their part's origin) and the parts'
+poses (float64). The cloud at time t and its target after h steps both follow from these by
+``T_cam_world · T_world_part(t or t+h) · p_part``, so one dataset serves every horizon.
+
+Episode i depends only on (seed, i), and shards hold fixed ranges of episodes, so the bytes are
+the same for any number of workers. Shards are written atomically and recorded with their
+checksums in ``manifest.json``; an interrupted run started again with the same arguments skips
+finished shards.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from scenarios import Scenario, load_scenario
+from sim.camera import associated_targets
+from sim.explore import MODES, ExplorationConfig, ExplorationPolicy, describe_exploration
+from sim.shards import DataError, atomic_write_json, sha256, write_shard
+from sim.world import MAX_PARTS, PushWorld
+
+DATA_FORMAT = 1
+MANIFEST = "manifest.json"
+CONTROL_LAYOUT = ("vx_m_s", "vy_m_s", "pusher_x_m", "pusher_y_m")
+SHAPES = ("box", "cylinder")
+MOVED_M = 1e-3
+"""an example shows object motion if some visible object point moves more than this"""
+NONZERO_FLOW_M = 1e-4
+"""points whose true flow exceeds this count as moving (the paper's 'non-zero flow')"""
+HIST_BIN_M, HIST_BINS = 2.5e-4, 400
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """What to generate; everything but ``episodes`` identifies a dataset folder."""
+
+    scenario: str
+    """scenario name or TOML path"""
+    episodes: int
+    """number of episodes"""
+    steps_per_episode: int = 20
+    """actions per episode (frames = steps + 1)"""
+    seed: int = 0
+    """episode i is drawn from (seed, i)"""
+    episodes_per_shard: int = 20
+    """episodes in one shard file"""
+    exploration: ExplorationConfig = field(default_factory=ExplorationConfig)
+    """the exploration policy's mixture"""
+
+    def __post_init__(self) -> None:
+        for name in ("episodes", "steps_per_episode", "episodes_per_shard"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)}")
+
+    @property
+    def n_shards(self) -> int:
+        return -(-self.episodes // self.episodes_per_shard)
+
+
+def code_version() -> str:
+    try:
+        return metadata.version("se3push")
+    except metadata.PackageNotFoundError:  # running from a source tree
+        return "unknown"
+
+
+def identity(cfg: DataConfig, scenario: Scenario) -> dict[str, Any]:
+    """The manifest's record of what the data is (JSON types, as stored); a folder only ever
+    holds one identity."""
+    ident = {
+        "format": DATA_FORMAT,
+        "scenario": dataclasses.asdict(scenario),
+        "seed": cfg.seed,
+        "episodes": cfg.episodes,
+        "steps_per_episode": cfg.steps_per_episode,
+        "episodes_per_shard": cfg.episodes_per_shard,
+        "exploration": describe_exploration(cfg.exploration),
+        "control_layout": list(CONTROL_LAYOUT),
+    }
+    return json.loads(json.dumps(ident))
+
+
+# --------------------------------------------------------------------------- episodes
+def run_episode(scenario: Scenario, cfg: DataConfig, index: int) -> dict[str, np.ndarray]:
+    """Simulate episode ``index`` (a function of ``(cfg.seed, index)`` alone).
+
+    Returns arrays with a leading frame axis of ``T + 1`` (actions: ``T``); frames after an
+    early end (object off the table, instability) are padded and ``length`` says how many
+    steps are real. The frame at which the episode ended is dropped, as the paper discards
+    such frames.
+    """
+    T = cfg.steps_per_episode
+    rng = np.random.default_rng([cfg.seed, index])
+    world = PushWorld(scenario)
+    obs = world.reset(rng)
+    policy = ExplorationPolicy(scenario, world.objects, rng, cfg.exploration)
+    obs = world.teleport_pusher(policy.start_position(obs))
+    H, W = obs.part.shape
+    n_obj = len(world.objects)
+    out = {
+        "part": np.full((T + 1, H, W), -1, np.int8),
+        "points_part": np.zeros((T + 1, 3, H, W), np.float16),
+        "T_world_part": np.tile(np.eye(4), (T + 1, MAX_PARTS, 1, 1)),
+        "object_poses": np.zeros((T + 1, MAX_PARTS - 2, 3)),
+        "pusher_xy": np.zeros((T + 1, 2)),
+        "joint_pos": np.zeros((T + 1, 4), np.float32),
+        "joint_vel": np.zeros((T + 1, 4), np.float32),
+        "actions": np.zeros((T, 2)),
+        "modes": np.full(T, -1, np.int8),
+        "n_objects": np.array(n_obj, np.int8),
+        "object_shape": np.array(
+            [SHAPES.index(o.shape) for o in world.objects] + [-1] * (3 - n_obj), np.int8
+        ),
+        "object_size": np.array([o.size_m for o in world.objects] + [(0, 0, 0)] * (3 - n_obj)),
+        "object_mass": np.array([o.mass_kg for o in world.objects] + [0] * (3 - n_obj), float),
+        "object_friction": np.array([o.friction for o in world.objects] + [0] * (3 - n_obj), float),
+    }
+
+    def record(t: int, o) -> None:
+        out["part"][t] = o.part
+        out["points_part"][t] = o.points_part
+        out["T_world_part"][t, : len(o.T_world_part)] = o.T_world_part
+        out["object_poses"][t, :n_obj] = o.object_poses
+        out["pusher_xy"][t] = o.pusher_xy_m
+        out["joint_pos"][t] = o.joint_pos_rad
+        out["joint_vel"][t] = o.joint_vel_rad_s
+
+    record(0, obs)
+    length = 0
+    for t in range(T):
+        action, mode = policy(obs)
+        obs = world.step(action)
+        if obs.done:
+            break
+        out["actions"][t], out["modes"][t] = action, MODES.index(mode)
+        record(t + 1, obs)
+        length = t + 1
+    out["length"] = np.array(length, np.int32)
+    out["qp_failures"] = np.array(world.qp_failures, np.int32)
+    return out
+
+
+def episode_stats(ep: dict[str, np.ndarray], T_cam_world: np.ndarray) -> dict[str, Any]:
+    """One-step statistics: examples, examples with object motion, flow of moving points."""
+    hist = np.zeros(HIST_BINS + 1, np.int64)
+    moved, n_moving, sum_f, sum_f2 = 0, 0, 0.0, 0.0
+    length = int(ep["length"])
+    for t in range(length):
+        p = ep["points_part"][t].astype(np.float64)
+        part = ep["part"][t]
+        f = np.linalg.norm(
+            associated_targets(p, part, ep["T_world_part"][t + 1], T_cam_world)
+            - associated_targets(p, part, ep["T_world_part"][t], T_cam_world),
+            axis=0,
+        )
+        moved += bool(np.any(f[part >= 2] > MOVED_M))
+        fm = f[f > NONZERO_FLOW_M]
+        n_moving += fm.size
+        sum_f += float(fm.sum())
+        sum_f2 += float((fm**2).sum())
+        hist += np.bincount(
+            np.minimum((fm / HIST_BIN_M).astype(int), HIST_BINS), minlength=HIST_BINS + 1
+        )
+    steps = np.bincount(ep["modes"][:length].astype(int), minlength=len(MODES))
+    return {
+        "examples": length,
+        "moved_examples": moved,
+        "moving_points": n_moving,
+        "flow_sum_m": sum_f,
+        "flow_sq_sum_m2": sum_f2,
+        "flow_hist": hist.tolist(),
+        "mode_steps": dict(zip(MODES, steps.tolist(), strict=True)),
+        "qp_failures": int(ep["qp_failures"]),
+    }
+
+
+def merge_stats(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    """Sum per-episode or per-shard statistics."""
+    out: dict[str, Any] = {}
+    for s in parts:
+        for k, v in s.items():
+            if isinstance(v, dict):
+                out[k] = {m: out.get(k, {}).get(m, 0) + n for m, n in v.items()}
+            elif isinstance(v, list):
+                out[k] = (
+                    np.asarray(out.get(k, np.zeros(len(v), np.int64))) + np.asarray(v)
+                ).tolist()
+            else:
+                out[k] = out.get(k, 0) + v
+    return out
+
+
+# ----------------------------------------------------------------------------- shards
+def shard_name(i: int) -> str:
+    return f"shard_{i:05d}.npz"
+
+
+def shard_episodes(cfg: DataConfig, i: int) -> range:
+    return range(i * cfg.episodes_per_shard, min((i + 1) * cfg.episodes_per_shard, cfg.episodes))
+
+
+def make_shard(cfg: DataConfig, i: int, out_dir: str) -> tuple[int, str, dict[str, Any]]:
+    """Generate and write shard i; returns (i, sha256, stats). Runs in worker processes."""
+    scenario = load_scenario(cfg.scenario)
+    T_cam_world = PushWorld(scenario).camera.T_cam_world
+    episodes = [run_episode(scenario, cfg, e) for e in shard_episodes(cfg, i)]
+    arrays = {k: np.stack([ep[k] for ep in episodes]) for k in episodes[0]}
+    arrays["episode_index"] = np.array(list(shard_episodes(cfg, i)), np.int64)
+    digest = write_shard(Path(out_dir) / shard_name(i), arrays)
+    stats = merge_stats([episode_stats(ep, T_cam_world) for ep in episodes])
+    stats["episodes"] = len(episodes)
+    return i, digest, stats
+
+
+def _diff(a: Any, b: Any, path: str = "") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        return [
+            d
+            for k in sorted(set(a) | set(b))
+            for d in _diff(a.get(k), b.get(k), f"{path}.{k}".lstrip("."))
+        ]
+    return [] if a == b else [f"{path}: folder has {a!r}, this run asks for {b!r}"]
+
+
+def open_folder(out_dir: Path, ident: dict[str, Any]) -> dict[str, Any]:
+    """Create or reopen a dataset folder for ``ident``; returns its manifest.
+
+    Raises:
+        DataError: the folder holds another dataset, or files that are not a dataset's.
+        PermissionError: the folder cannot be written.
+    """
+    out_dir = Path(out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        probe = out_dir / ".write-test"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as err:
+        raise PermissionError(
+            f"cannot write to {out_dir} ({err.strerror}); choose another --out folder"
+        ) from None
+    path = out_dir / MANIFEST
+    if path.exists():
+        try:
+            manifest = json.loads(path.read_text())
+        except json.JSONDecodeError as err:
+            raise DataError(
+                f"{path} is corrupted ({err}); delete the folder and generate again"
+            ) from None
+        diffs = _diff(manifest.get("identity"), ident)
+        headline = ("scenario.name:", "seed:", "format:")  # the differences people look for first
+        diffs.sort(key=lambda d: not d.startswith(headline))
+        if diffs:
+            raise DataError(
+                f"{out_dir} holds a different dataset ({'; '.join(diffs[:3])}); "
+                "use a new --out folder, or the original arguments to resume"
+            )
+        return manifest
+    leftovers = [p.name for p in out_dir.iterdir() if not p.name.startswith(".")]
+    if leftovers:
+        raise DataError(
+            f"{out_dir} is not empty and holds no dataset ({leftovers[0]}, ...); "
+            "use a new --out folder"
+        )
+    manifest = {"identity": ident, "code_version": code_version(), "shards": {}, "complete": False}
+    atomic_write_json(path, manifest)
+    return manifest
+
+
+def generate(
+    cfg: DataConfig, out_dir: str | Path, *, workers: int = 1, progress: bool = True
+) -> dict[str, Any]:
+    """Generate (or finish generating) a dataset; returns the manifest.
+
+    Args:
+        cfg: what to generate.
+        out_dir: the dataset folder (created if needed).
+        workers: processes; the bytes do not depend on it.
+        progress: show a tqdm bar (episodes, examples, examples/s, ETA).
+    """
+    from tqdm import tqdm
+
+    if workers < 1:
+        raise ValueError(f"--workers must be at least 1, got {workers}")
+    scenario = load_scenario(cfg.scenario)
+    out_dir = Path(out_dir)
+    manifest = open_folder(out_dir, identity(cfg, scenario))
+    for tmp in out_dir.glob(".shard_*.tmp-*"):  # left by an interrupted run; never read
+        tmp.unlink()
+    for name, entry in list(manifest["shards"].items()):  # recorded, but lost or damaged since
+        path = out_dir / name
+        if not path.is_file() or sha256(path) != entry["sha256"]:
+            del manifest["shards"][name]
+    for path in sorted(out_dir.glob("shard_*.npz")):  # written but never recorded
+        if path.name not in manifest["shards"]:
+            path.unlink()
+    todo = [i for i in range(cfg.n_shards) if shard_name(i) not in manifest["shards"]]
+    bar = tqdm(
+        total=cfg.episodes, unit="ep", disable=not progress, desc="episodes", dynamic_ncols=True
+    )
+    bar.update(sum(s["episodes"] for s in manifest["shards"].values()))
+    examples = sum(s["examples"] for s in manifest["shards"].values())
+
+    def record(i: int, digest: str, stats: dict[str, Any]) -> None:
+        nonlocal examples
+        manifest["shards"][shard_name(i)] = {"sha256": digest, **stats}
+        atomic_write_json(out_dir / MANIFEST, manifest)
+        examples += stats["examples"]
+        bar.update(stats["episodes"])
+        rate = bar.format_dict["rate"] or 0.0
+        bar.set_postfix(examples=examples, ex_per_s=f"{rate * cfg.steps_per_episode:.0f}")
+
+    if workers == 1:
+        for i in todo:
+            record(*make_shard(cfg, i, str(out_dir)))
+    else:
+        ctx = multiprocessing.get_context("fork")  # workers use numpy and MuJoCo only
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            futures = [pool.submit(make_shard, cfg, i, str(out_dir)) for i in todo]
+            for fut in as_completed(futures):
+                record(*fut.result())
+    bar.close()
+    manifest["complete"] = len(manifest["shards"]) == cfg.n_shards
+    manifest["stats"] = merge_stats(
+        [{k: v for k, v in s.items() if k != "sha256"} for s in manifest["shards"].values()]
+    )
+    atomic_write_json(out_dir / MANIFEST, manifest)
+    return manifest

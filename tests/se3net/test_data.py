@@ -1,0 +1,173 @@
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from scenarios import load_scenario
+from se3net.data import PushDataset
+from sim import PushWorld
+from sim.dataset import DataConfig, generate
+from sim.datastore import split_of
+from sim.explore import ExplorationPolicy
+from sim.shards import DataError
+
+CFG = DataConfig("tiny", episodes=21, steps_per_episode=6, episodes_per_shard=7)
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("data")
+    generate(CFG, root, progress=False)
+    return root
+
+
+def test_splits_never_share_an_episode(root):
+    seen = {}
+    for split in ("train", "val", "test"):
+        ds = PushDataset(root, split=split)
+        episodes = {int(e) for e in ds.episode_index}
+        assert all(split_of(e) == split for e in episodes)
+        seen[split] = episodes
+    assert seen["val"] == {18} and seen["test"] == {19}
+    assert not (seen["train"] & seen["val"]) and not (seen["train"] & seen["test"])
+    assert len(seen["train"]) == 19
+
+
+def _fresh_observations(episode: int):
+    """Simulate an episode afresh with the stored actions."""
+    s = load_scenario("tiny")
+    world = PushWorld(s)
+    rng = np.random.default_rng([CFG.seed, episode])
+    obs = world.reset(rng)
+    policy = ExplorationPolicy(s, world.objects, rng, CFG.exploration)
+    obs = [world.teleport_pusher(policy.start_position(obs))]
+    return world, obs, policy
+
+
+@pytest.mark.parametrize("horizon", [1, 3])
+def test_targets_from_stored_associations_equal_a_fresh_simulation(root, horizon):
+    ds = PushDataset(root, split="train", horizon=horizon)
+    e_row = 2
+    episode = int(ds.episode_index[e_row])
+    world, obs, _ = _fresh_observations(episode)
+    actions = ds.a["actions"][e_row]
+    for a in actions[: int(ds.a["length"][e_row])]:
+        obs.append(world.step(a))
+    items = [i for i, (e, _) in enumerate(ds.items) if e == e_row]
+    checked = 0
+    for i in items:
+        item = ds[i]
+        t = item["t"]
+        np.testing.assert_allclose(item["points"].numpy(), obs[t].points_cam, atol=2.5e-4)
+        for k in range(1, horizon + 1):
+            exact = world.targets(obs[t], obs[t + k])
+            err = np.abs(item["target"][k - 1].numpy() - exact)[:, obs[t].valid]
+            assert err.max() < 2.5e-4  # float16 body-frame points: well under 1 mm
+            checked += 1
+        np.testing.assert_array_equal(item["valid"].numpy(), obs[t].valid)
+        np.testing.assert_array_equal(item["part"].numpy(), obs[t].part)
+        u = item["u"].numpy()
+        np.testing.assert_allclose(u[:, :2], actions[t : t + horizon], atol=1e-6)
+        np.testing.assert_allclose(u[0, 2:], obs[t].pusher_xy_m, atol=1e-6)
+    assert checked > 0
+
+
+def test_target_validity_marks_points_that_stay_visible(root):
+    ds = PushDataset(root, split="train", horizon=2)
+    frac = np.mean(
+        [
+            ds[i]["target_valid"].float().mean().item() / ds[i]["valid"].float().mean().item()
+            for i in range(0, len(ds), 7)
+        ]
+    )
+    assert 0.9 < frac <= 1.0
+    item = ds[0]
+    assert not (item["target_valid"] & ~item["valid"]).any()
+
+
+def test_noise_is_off_by_default_and_does_what_it_says(root):
+    noise0 = load_scenario("tiny").noise
+    assert noise0.depth_sd_m == 0 and noise0.assoc_window == 0
+    clean = PushDataset(root, split="train")
+    off = PushDataset(root, split="train", noise=noise0)
+    i = 5
+    for k in ("points", "target", "target_valid"):
+        assert torch.equal(clean[i][k], off[i][k])
+
+    sd = 0.01
+    plain = PushDataset(root, split="train", noise=dataclasses.replace(noise0, depth_sd_m=sd))
+    dz = np.concatenate(
+        [
+            (plain[j]["points"][2] - clean[j]["points"][2])[clean[j]["valid"]].numpy()
+            for j in range(10)
+        ]
+    )
+    assert abs(dz.std() / sd - 1) < 0.1 and abs(dz.mean()) < 0.1 * sd
+    scaled = PushDataset(
+        root, split="train", noise=dataclasses.replace(noise0, depth_sd_m=sd, depth_sd_scaled=True)
+    )
+    z = np.concatenate([clean[j]["points"][2][clean[j]["valid"]].numpy() for j in range(10)])
+    dz2 = np.concatenate(
+        [
+            (scaled[j]["points"][2] - clean[j]["points"][2])[clean[j]["valid"]].numpy()
+            for j in range(10)
+        ]
+    )
+    assert abs((dz2 / z).std() / sd - 1) < 0.1
+    # noise moves points along their rays: x/z and y/z are unchanged
+    np.testing.assert_allclose(
+        (plain[i]["points"][:2] / plain[i]["points"][2:].clamp(min=1e-9))[:, clean[i]["valid"]],
+        (clean[i]["points"][:2] / clean[i]["points"][2:].clamp(min=1e-9))[:, clean[i]["valid"]],
+        atol=1e-5,
+    )
+    assert not torch.equal(
+        plain[i]["points"], PushDataset(root, split="train", noise=plain.noise, seed=1)[i]["points"]
+    )
+
+    m, thr = 5, 0.02
+    assoc = PushDataset(
+        root,
+        split="train",
+        noise=dataclasses.replace(noise0, assoc_window=m, assoc_depth_threshold_m=thr),
+    )
+    c, a = clean[i], assoc[i]
+    tc, ta = c["target"][0].numpy(), a["target"][0].numpy()
+    z = c["points"][2].numpy()
+    H, W = z.shape
+    changed = 0
+    for v in range(H):
+        for u in range(W):
+            if not c["valid"][v, u]:
+                continue
+            rows, cols = range(max(0, v - 2), min(H, v + 3)), range(max(0, u - 2), min(W, u + 3))
+            window = [
+                (v2, u2)
+                for v2 in rows
+                for u2 in cols
+                if c["valid"][v2, u2] and abs(z[v2, u2] - z[v, u]) <= thr + 1e-6
+            ]
+            assert any(np.allclose(ta[:, v, u], tc[:, v2, u2]) for v2, u2 in window)
+            changed += not np.allclose(ta[:, v, u], tc[:, v, u])
+    assert changed > 0.3 * c["valid"].sum().item()
+
+
+def test_bad_reads_are_refused_with_what_to_do(root, tmp_path):
+    with pytest.raises(DataError, match="horizon 7 does not fit episodes of 6 steps"):
+        PushDataset(root, horizon=7)
+    with pytest.raises(DataError, match="not a dataset folder"):
+        PushDataset(tmp_path)
+    with pytest.raises(ValueError, match="unknown split"):
+        PushDataset(root, split="training")
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(root, copy)
+    shard = copy / "shard_00001.npz"
+    shard.write_bytes(shard.read_bytes()[:1000])
+    with pytest.raises(
+        DataError, match=r"shard_00001\.npz fails its checksum.*run the same `se3push data`"
+    ):
+        PushDataset(copy)
+    with pytest.raises(DataError, match=r"shard_00001\.npz cannot be read"):
+        PushDataset(copy, verify=False)
