@@ -17,7 +17,7 @@ from torch.utils.data import Dataset
 from scenarios import NoiseConfig
 from sim.camera import DepthCamera
 from sim.dataset import CONTROL_LAYOUT
-from sim.datastore import frame_cloud, load_episodes, read_manifest, scenario_of
+from sim.datastore import load_episodes, read_manifest, scenario_of
 from sim.shards import DataError
 
 VISIBLE_DEPTH_TOL_M = 0.01
@@ -66,6 +66,7 @@ class PushDataset(Dataset):
             )
         self.scenario = scenario_of(self.manifest)
         self.camera = DepthCamera(self.scenario.camera)
+        self._T_cam_world = self.camera.T_cam_world
         self.horizon, self.noise, self.seed, self.epoch = horizon, noise, seed, 0
         eps = load_episodes(root, split, verify=verify)
         self.a, self.episode_index = eps.arrays, eps.index
@@ -84,54 +85,77 @@ class PushDataset(Dataset):
         """Draw fresh noise in each epoch (noise depends on (seed, epoch, item))."""
         self.epoch = epoch
 
-    def cloud(self, e: int, t: int, *, at: int | None = None) -> np.ndarray:
-        """Frame t's points (3,H,W) placed with the parts' poses at frame ``at`` (default t)."""
-        return frame_cloud(self.a, e, t, self.camera.T_cam_world, at=at)
-
-    def _visible(self, target: np.ndarray, part: np.ndarray, e: int, t2: int) -> np.ndarray:
-        """Which targets (3,H,W) land on a pixel of frame t2 that sees their part at their depth."""
-        H, W = part.shape
-        uv = np.floor(self.camera.project(np.moveaxis(target, 0, -1))).astype(int)
-        inside = (
-            (uv[..., 0] >= 0)
-            & (uv[..., 0] < W)
-            & (uv[..., 1] >= 0)
-            & (uv[..., 1] < H)
-            & (part >= 0)
+    def clouds(self, e: np.ndarray, t: np.ndarray, at: np.ndarray | None = None) -> torch.Tensor:
+        """Frame t's points (B,3,H,W) of episode rows e, placed with the parts' poses at frame
+        ``at`` (default t): the observed clouds, or their exact targets after ``at - t`` steps."""
+        at = t if at is None else at
+        T = torch.from_numpy(self._T_cam_world @ self.a["T_world_part"][e, at]).float()  # (B,P,4,4)
+        part = torch.from_numpy(self.a["part"][e, t].astype(np.int64))  # (B,H,W)
+        p = torch.from_numpy(self.a["points_part"][e, t]).float()  # (B,3,H,W)
+        idx = part.clamp_min(0)
+        Tp = T[torch.arange(len(e))[:, None, None], idx]  # (B,H,W,4,4)
+        y = torch.einsum("bhwij,bjhw->bihw", Tp[..., :3, :3], p) + Tp[..., :3, 3].permute(
+            0, 3, 1, 2
         )
-        u, v = np.clip(uv[..., 0], 0, W - 1), np.clip(uv[..., 1], 0, H - 1)
-        seen = self.cloud(e, t2)[2][v, u]
-        same = self.a["part"][e, t2][v, u] == part
-        return inside & same & (np.abs(seen - target[2]) < VISIBLE_DEPTH_TOL_M)
+        return y * (part >= 0)[:, None]
 
-    def __getitem__(self, i: int) -> dict[str, Any]:
-        e, t = (int(x) for x in self.items[i])
+    def _visible(
+        self, target: torch.Tensor, part: torch.Tensor, e: np.ndarray, t2: np.ndarray
+    ) -> torch.Tensor:
+        """Which targets (B,3,H,W) land on a pixel of frame t2 that sees their part at their
+        depth."""
+        B, H, W = part.shape
+        K = self.camera.K
+        z = target[:, 2].clamp_min(1e-6)
+        u = torch.floor(target[:, 0] / z * K[0, 0] + K[0, 2]).long()
+        v = torch.floor(target[:, 1] / z * K[1, 1] + K[1, 2]).long()
+        inside = (u >= 0) & (u < W) & (v >= 0) & (v < H) & (part >= 0)
+        u, v = u.clamp(0, W - 1), v.clamp(0, H - 1)
+        b = torch.arange(B)[:, None, None]
+        seen = self.clouds(e, t2)[:, 2][b, v, u]
+        same = torch.from_numpy(self.a["part"][e, t2].astype(np.int64))[b, v, u] == part
+        return inside & same & ((seen - target[:, 2]).abs() < VISIBLE_DEPTH_TOL_M)
+
+    def batch(self, indices: np.ndarray | list[int]) -> dict[str, Any]:
+        """Items ``indices`` stacked into a batch (vectorised; see the class doc for keys).
+
+        ``u`` is (B,h,4), ``target`` (B,h,3,H,W), ``target_valid`` (B,h,H,W)."""
+        idx = np.asarray(indices, dtype=np.int64)
+        e, t = self.items[idx, 0], self.items[idx, 1]
         h = self.horizon
-        part = self.a["part"][e, t]
+        part = torch.from_numpy(self.a["part"][e, t].astype(np.int64))
         valid = part >= 0
-        points = self.cloud(e, t)
-        targets = np.stack([self.cloud(e, t, at=t + k) for k in range(1, h + 1)])
-        target_valid = np.stack(
-            [self._visible(targets[k - 1], part, e, t + k) for k in range(1, h + 1)]
+        points = self.clouds(e, t)
+        targets = torch.stack([self.clouds(e, t, t + k) for k in range(1, h + 1)], 1)
+        target_valid = torch.stack(
+            [self._visible(targets[:, k - 1], part, e, t + k) for k in range(1, h + 1)], 1
         )
         if self.noise is not None:
-            rng = np.random.default_rng([self.seed, self.epoch, i])
-            points, targets, target_valid = apply_noise(
-                points, targets, target_valid, valid, self.noise, rng
-            )
+            for n, i in enumerate(idx):
+                rng = np.random.default_rng([self.seed, self.epoch, int(i)])
+                pt, tg = points[n].double().numpy(), targets[n].double().numpy()
+                tv, va = target_valid[n].numpy(), valid[n].numpy()
+                noisy = apply_noise(pt, tg, tv, va, self.noise, rng)
+                points[n], targets[n], target_valid[n] = (torch.from_numpy(x) for x in noisy)
+        steps = t[:, None] + np.arange(h)
         u = np.concatenate(
-            [self.a["actions"][e, t : t + h], self.a["pusher_xy"][e, t : t + h]], axis=1
+            [self.a["actions"][e[:, None], steps], self.a["pusher_xy"][e[:, None], steps]], -1
         )
         return {
-            "points": torch.from_numpy(points.astype(np.float32)),
-            "valid": torch.from_numpy(valid),
-            "u": torch.from_numpy(u.astype(np.float32)),
-            "target": torch.from_numpy(targets.astype(np.float32)),
-            "target_valid": torch.from_numpy(target_valid),
-            "part": torch.from_numpy(part.astype(np.int64)),
-            "episode": int(self.episode_index[e]),
-            "t": t,
+            "points": points,
+            "valid": valid,
+            "u": torch.from_numpy(u).float(),
+            "target": targets,
+            "target_valid": target_valid,
+            "part": part,
+            "episode": torch.from_numpy(self.episode_index[e]),
+            "t": torch.from_numpy(t),
         }
+
+    def __getitem__(self, i: int) -> dict[str, Any]:
+        item = {k: v[0] for k, v in self.batch([i]).items()}
+        item["episode"], item["t"] = int(item["episode"]), int(item["t"])
+        return item
 
 
 def _depth_noise(

@@ -75,15 +75,64 @@ def bench_data(*, repeats: int) -> dict[str, float]:
     return out
 
 
-BENCHES: dict[str, Callable[..., dict[str, float]]] = {"world": bench_world, "data": bench_data}
+def bench_model(*, repeats: int) -> dict[str, float]:
+    """The SE3-Net (se3net variant, 64x64, k = 4) on CPU: Adam step time at batch 32 and
+    inference samples/s (inference mode) at batch 1, 64 and 256."""
+    import torch
+
+    from se3net.metrics import point_loss
+    from se3net.model import ModelConfig, build_model
+
+    torch.manual_seed(0)
+    model = build_model(ModelConfig())
+    opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+
+    def batch(n: int) -> tuple[torch.Tensor, ...]:
+        pts = torch.randn(n, 3, 64, 64) * 0.1 + torch.tensor([0.0, 0.0, 0.8])[:, None, None]
+        return pts, torch.randn(n, 4), torch.ones(n, 64, 64, dtype=torch.bool)
+
+    pts, u, valid = batch(32)
+
+    def train_step() -> None:
+        pred = model(pts, u, valid, sigma=0.05, gamma=5.0).points
+        loss = point_loss(pred, pts + 0.01, valid, pts)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+
+    out: dict = {"train_step_ms_batch32": 1e3 * median_seconds(train_step, repeats=repeats)}
+    out["infer_samples_per_s"] = {}
+    model.eval()
+    for n in (1, 64, 256):
+        x = batch(n)
+
+        def infer(x: tuple[torch.Tensor, ...] = x) -> None:
+            with torch.inference_mode():
+                model(*x)
+
+        reps = max(3, repeats // (1 + n // 64))
+        out["infer_samples_per_s"][str(n)] = n / median_seconds(infer, repeats=reps)
+    return out
 
 
-def run_bench(what: str, *, repeats: int, json_path: str | None) -> dict[str, float]:
+BENCHES: dict[str, Callable[..., dict[str, float]]] = {
+    "world": bench_world,
+    "data": bench_data,
+    "model": bench_model,
+}
+
+
+def run_bench(what: str, *, repeats: int, json_path: str | None) -> dict:
     """Run one benchmark, print its table and optionally write its figures as JSON."""
     figures = BENCHES[what](repeats=repeats)
-    width = max(map(len, figures))
+    flat = {
+        f"{name}[{key}]" if isinstance(value, dict) else name: v
+        for name, value in figures.items()
+        for key, v in (value.items() if isinstance(value, dict) else [(None, value)])
+    }
+    width = max(map(len, flat))
     print(f"se3push bench {what} (medians over repeats)")
-    for name, value in figures.items():
+    for name, value in flat.items():
         print(f"  {name:<{width}}  {value:12.1f}")
     if json_path:
         Path(json_path).write_text(json.dumps(figures, indent=2) + "\n")

@@ -13,7 +13,14 @@ from collections.abc import Callable, Sequence
 from scenarios import ScenarioError
 from sim import ActionError
 
-USER_ERRORS = (ScenarioError, ActionError, FileNotFoundError, PermissionError, ValueError)
+USER_ERRORS = (
+    ScenarioError,
+    ActionError,
+    FileNotFoundError,
+    FileExistsError,
+    PermissionError,
+    ValueError,
+)
 
 
 def _cmd_scenarios(args: argparse.Namespace) -> int:
@@ -65,6 +72,37 @@ def _cmd_data(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_train(args: argparse.Namespace) -> int:
+    from se3net.train import TrainConfig, TrainingDiverged, train
+
+    cfg = TrainConfig(
+        data=args.data, out=args.out, variant=args.variant, iters=args.iters, batch=args.batch,
+        lr=args.lr, horizon=args.horizon, seed=args.seed, device=args.device, k=args.k,
+        eval_every=args.eval_every, keep_every=args.keep_every,
+    )  # fmt: skip
+    try:
+        figures = train(cfg, resume=args.resume)
+    except TrainingDiverged as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+    print(
+        f"done: {args.out}/best.pt; last validation flow MSE "
+        f"{figures['val_flow_mse_cm2']:.4f} cm^2, ratio to no-motion {figures['val_ratio']:.3f}"
+    )
+    return 0
+
+
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from se3net.checkpoint import DEFAULT_MODEL
+    from se3net.evaluate import evaluate, table_markdown
+
+    paths = [DEFAULT_MODEL if c == "default" else c for c in args.checkpoints]
+    results = evaluate(paths, args.data, args.out, max_examples=args.max_examples)
+    print(table_markdown(results, args.data))
+    print(f"wrote {args.out}/table.md, eval.json and example PNGs")
+    return 0
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     from se3push.bench import run_bench
 
@@ -95,8 +133,35 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--inspect", metavar="DIR", help="print a dataset's manifest and statistics")
     s.set_defaults(run=_cmd_data)
 
+    s = sub.add_parser("train", help="train an SE3-Net or a baseline on a dataset")
+    s.add_argument("--data", required=True, help="dataset folder (from `se3push data`)")
+    s.add_argument(
+        "--variant", default="se3net", help="se3net, se3net-large, no-penalty, flow, flow-large"
+    )
+    s.add_argument("--out", required=True, help="run folder (checkpoints, metrics.jsonl)")
+    s.add_argument("--iters", type=int, default=6000)
+    s.add_argument("--batch", type=int, default=32)
+    s.add_argument("--lr", type=float, default=1e-3)
+    s.add_argument("--horizon", type=int, default=1, help="prediction horizon in control steps")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--device", default="cpu", help="cpu or cuda")
+    s.add_argument("--k", type=int, default=4, help="number of masks (SE3-Net variants)")
+    s.add_argument("--eval-every", type=int, default=250, help="iterations between validations")
+    s.add_argument("--keep-every", type=int, default=0, help="keep a checkpoint every N iterations")
+    s.add_argument("--resume", action="store_true", help="continue the run in --out exactly")
+    s.set_defaults(run=_cmd_train)
+
+    s = sub.add_parser("eval", help="the paper's Table 1 on a dataset's test split")
+    s.add_argument("--data", required=True, help="dataset folder")
+    s.add_argument(
+        "--checkpoints", nargs="+", required=True, help="checkpoint files ('default': shipped)"
+    )
+    s.add_argument("--out", required=True, help="folder for table.md, eval.json and PNGs")
+    s.add_argument("--max-examples", type=int, default=2000, help="test examples to use")
+    s.set_defaults(run=_cmd_eval)
+
     s = sub.add_parser("bench", help="time the hot paths (medians over repeats)")
-    s.add_argument("what", choices=["world", "data"], help="which benchmark")
+    s.add_argument("what", choices=["world", "data", "model"], help="which benchmark")
     s.add_argument("--repeats", type=int, default=20, help="timed repeats per figure")
     s.add_argument("--json", default=None, metavar="PATH", help="also write the figures as JSON")
     s.set_defaults(run=_cmd_bench)

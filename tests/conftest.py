@@ -25,3 +25,17 @@ def with_fields(scenario: Scenario, section: str, **changes) -> Scenario:
     return dataclasses.replace(
         scenario, **{section: dataclasses.replace(getattr(scenario, section), **changes)}
     )
+
+
+@pytest.fixture(scope="session")
+def tiny_data(tmp_path_factory):
+    """A small tiny-scenario dataset (21 episodes of 8 steps: train, val and test splits)."""
+    from sim.dataset import DataConfig, generate
+
+    root = tmp_path_factory.mktemp("tiny_data")
+    generate(
+        DataConfig("tiny", episodes=21, steps_per_episode=8, episodes_per_shard=7),
+        root,
+        progress=False,
+    )
+    return root

@@ -114,3 +114,54 @@ def test_bench_data_writes_the_named_figures(tmp_path):
         "bytes_per_example",
     }
     assert all(v > 0 for v in figures.values())
+
+
+def test_train_and_eval_commands(tiny_data, tmp_path, capsys):
+    run = tmp_path / "run"
+    args = ["train", "--data", str(tiny_data), "--out", str(run), "--iters", "4", "--batch", "4",
+            "--eval-every", "2", "--k", "3"]  # fmt: skip
+    assert main(args) == 0
+    assert "ratio to no-motion" in capsys.readouterr().out
+    assert main(args) == 2  # the run exists: resume or choose another folder
+    assert "--resume" in capsys.readouterr().err
+    assert main([*args, "--resume"]) == 0
+    out = tmp_path / "eval"
+    assert (
+        main(
+            [
+                "eval",
+                "--data",
+                str(tiny_data),
+                "--checkpoints",
+                str(run / "best.pt"),
+                "--out",
+                str(out),
+                "--max-examples",
+                "20",
+            ]
+        )
+        == 0
+    )
+    assert "| ratio to no-motion |" in capsys.readouterr().out
+    assert json.loads((out / "eval.json").read_text())["run"]["variant"] == "se3net"
+
+
+def test_train_and_eval_bad_input_is_exit_code_2(tiny_data, tmp_path, capsys):
+    assert main(["train", "--data", str(tmp_path / "missing"), "--out", str(tmp_path / "r")]) == 2
+    assert "not a dataset folder" in capsys.readouterr().err
+    assert (
+        main(["train", "--data", str(tiny_data), "--out", str(tmp_path / "r"), "--variant", "huge"])
+        == 2
+    )
+    assert "unknown variant 'huge'" in capsys.readouterr().err
+    args = [
+        "eval",
+        "--data",
+        str(tiny_data),
+        "--checkpoints",
+        str(tmp_path / "none.pt"),
+        "--out",
+        str(tmp_path / "e"),
+    ]
+    assert main(args) == 2
+    assert "does not exist" in capsys.readouterr().err

@@ -1,0 +1,155 @@
+"""Checkpoint files: weights plus everything needed to use them safely.
+
+One file holds the model config, the weights (normalisation included), the scenario the data
+came from (camera, action bounds, timing), the control layout, the data manifest's hash, the
+code version, and for training checkpoints the optimiser and random states to resume exactly.
+Loading one that does not fit the scenario or this code is refused, saying what differs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import io
+import json
+import pickle
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from scenarios import Scenario
+from se3net.model import ModelConfig, build_model
+from sim.dataset import CONTROL_LAYOUT, code_version
+from sim.shards import atomic_write_bytes
+
+CHECKPOINT_FORMAT = 1
+DEFAULT_MODEL = Path(__file__).parent / "weights" / "default.pt"
+"""the shipped se3net model (single_box)"""
+
+
+class CheckpointError(ValueError):
+    """A checkpoint is missing, damaged, or does not fit the scenario or the code."""
+
+
+def manifest_hash(manifest: dict[str, Any]) -> str:
+    """Hash of a dataset's identity and shard checksums."""
+    blob = json.dumps(
+        {
+            "identity": manifest["identity"],
+            "shards": {k: v["sha256"] for k, v in manifest["shards"].items()},
+        },
+        sort_keys=True,
+    )
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def scenario_fingerprint(scenario: Scenario) -> dict[str, Any]:
+    """What a model depends on in a scenario: what it sees and how actions act."""
+    return json.loads(
+        json.dumps(
+            {
+                "camera": dataclasses.asdict(scenario.camera),
+                "action": dataclasses.asdict(scenario.action),
+            }
+        )
+    )
+
+
+def save_checkpoint(
+    path: str | Path,
+    model: torch.nn.Module,
+    *,
+    scenario: Scenario,
+    data_hash: str,
+    extra: dict[str, Any] | None = None,
+    train_state: dict[str, Any] | None = None,
+) -> None:
+    """Write a checkpoint atomically."""
+    blob = {
+        "format": CHECKPOINT_FORMAT,
+        "code_version": code_version(),
+        "model": model.cfg.to_dict(),
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        "scenario": json.loads(json.dumps(dataclasses.asdict(scenario))),
+        "fingerprint": scenario_fingerprint(scenario),
+        "control_layout": list(CONTROL_LAYOUT),
+        "data_hash": data_hash,
+        "extra": extra or {},
+    }
+    if train_state is not None:
+        blob["train_state"] = train_state
+    buf = io.BytesIO()
+    torch.save(blob, buf)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(Path(path), buf.getvalue())
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """The raw contents of a checkpoint file, checked to be readable and of this format."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint {path} does not exist; train one with `se3push train`")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except (RuntimeError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError, ValueError) as err:
+        raise CheckpointError(
+            f"checkpoint {path} cannot be read (truncated or damaged?): {err}"
+        ) from None
+    if not isinstance(blob, dict) or blob.get("format") != CHECKPOINT_FORMAT:
+        found = blob.get("format") if isinstance(blob, dict) else type(blob).__name__
+        raise CheckpointError(
+            f"checkpoint {path} has format {found!r}; this code reads format {CHECKPOINT_FORMAT}"
+        )
+    return blob
+
+
+def load_checkpoint(
+    path: str | Path,
+    *,
+    scenario: Scenario | None = None,
+    variant: str | None = None,
+    device: str | torch.device = "cpu",
+) -> tuple[torch.nn.Module, dict[str, Any]]:
+    """Load a model for inference (in eval mode) and its checkpoint contents.
+
+    Args:
+        scenario: if given, the checkpoint must have been trained on data whose camera and
+            action settings match it.
+        variant: if given, the checkpoint must be of this variant.
+
+    Raises:
+        CheckpointError: missing, unreadable, or mismatched, with what differs.
+    """
+    blob = read_checkpoint(path)
+    cfg = ModelConfig(**blob["model"])
+    if variant is not None and cfg.variant != variant:
+        raise CheckpointError(f"checkpoint {path} is a {cfg.variant!r} model, not {variant!r}")
+    if blob["control_layout"] != list(CONTROL_LAYOUT):
+        raise CheckpointError(
+            f"checkpoint {path} uses controls {blob['control_layout']}; "
+            f"this code uses {list(CONTROL_LAYOUT)}"
+        )
+    if scenario is not None:
+        ours = scenario_fingerprint(scenario)
+        diffs = [
+            f"{section}.{key}: model has {blob['fingerprint'][section][key]!r}, "
+            f"scenario {scenario.name!r} has {value!r}"
+            for section, fields in ours.items()
+            for key, value in fields.items()
+            if blob["fingerprint"][section].get(key) != value
+        ]
+        if diffs:
+            raise CheckpointError(
+                f"checkpoint {path} does not fit scenario {scenario.name!r}: "
+                + "; ".join(diffs[:4])
+            )
+    model = build_model(cfg)
+    try:
+        model.load_state_dict(blob["state_dict"])
+    except RuntimeError as err:
+        raise CheckpointError(
+            f"checkpoint {path} does not fit the {cfg.variant} network of this code: {err}"
+        ) from None
+    return model.to(device).eval(), blob

@@ -1,0 +1,301 @@
+"""The SE3-Net (Byravan & Fox, 2017) and the paper's flow baselines, built from one config.
+
+Encoder: conv blocks with BatchNorm and PReLU, strided (small) or with max-pooling (large);
+control encoder: two FC layers; late fusion by concatenation, then FC. Decoders (masks for
+the SE3-Net, flow for the baselines) are deconvolutions from the fused code that add the
+matching encoder features (skip-add). The SE(3) head predicts k transforms, initialised to the
+identity; the transform layer blends them with the masks (paper, Eq. 3):
+
+    y_j = sum_i m_ij (R_i (x_j - c_i) + c_i + t_i)
+
+with pivots ``c_i`` the mask-weighted centroid of the input points (``pivot="centroid"``), or
+``c_i = 0`` as in the paper (``pivot="origin"``); both span the same motions, but about the
+centroid the translation is the mask's own motion, which trains better (see REFERENCE.md).
+
+Weight sharpening (paper, Eq. 2): ``m' = normalise((m + eps)^gamma)``, ``eps ~ N(0, sigma^2)``,
+with sigma and gamma ramped over training (``sharpening``); at evaluation the last gamma is
+applied without noise, so the masks used are those the training ended with.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import NamedTuple
+
+import torch
+from torch import nn
+
+from se3net.se3 import params_to_transform
+
+VARIANTS = ("se3net", "se3net-large", "no-penalty", "flow", "flow-large")
+FLOW_SCALE_M = 0.01
+"""the flow decoder predicts flow in units of 1 cm"""
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Architecture of one variant."""
+
+    variant: str = "se3net"
+    """one of VARIANTS"""
+    k: int = 4
+    """number of masks and transforms (SE3-Net variants)"""
+    height: int = 64
+    """input height in pixels (a multiple of 16, of 32 for large variants)"""
+    width: int = 64
+    """input width in pixels"""
+    control_dim: int = 4
+    """length of the control vector u"""
+    sigma_max: float = 0.1
+    """largest SD of the sharpening noise"""
+    gamma_max: float = 30.0
+    """largest sharpening exponent"""
+    pivot: str = "centroid"
+    """rotate each mask about its centroid ("centroid") or the camera origin ("origin")"""
+
+    def __post_init__(self) -> None:
+        if self.variant not in VARIANTS:
+            raise ValueError(f"unknown variant {self.variant!r}; known: {', '.join(VARIANTS)}")
+        div = 32 if self.large else 16
+        if self.height % div or self.width % div:
+            raise ValueError(f"{self.variant} needs height and width divisible by {div}")
+        if self.k < 1 or self.control_dim < 1:
+            raise ValueError("k and control_dim must be positive")
+        if self.pivot not in ("centroid", "origin"):
+            raise ValueError(f"pivot must be 'centroid' or 'origin', got {self.pivot!r}")
+
+    @property
+    def large(self) -> bool:
+        return self.variant.endswith("-large")
+
+    @property
+    def is_flow(self) -> bool:
+        return self.variant.startswith("flow")
+
+    @property
+    def sharpens(self) -> bool:
+        return self.variant in ("se3net", "se3net-large")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class Prediction(NamedTuple):
+    """What a model predicts for a batch."""
+
+    points: torch.Tensor
+    """(B,3,H,W) predicted cloud"""
+    masks: torch.Tensor | None
+    """(B,k,H,W) masks used by the transform layer (None for flow nets)"""
+    transforms: torch.Tensor | None
+    """(B,k,3,4) SE(3) transforms about the pivots (None for flow nets)"""
+    pivots: torch.Tensor | None
+    """(B,k,3) rotation centres (None for flow nets)"""
+
+
+def _block(conv: nn.Module, channels: int, *, pool: bool = False) -> nn.Sequential:
+    layers = (
+        [conv]
+        + ([nn.MaxPool2d(2)] if pool else [])
+        + [nn.BatchNorm2d(channels), nn.PReLU(channels)]
+    )
+    return nn.Sequential(*layers)
+
+
+class _Backbone(nn.Module):
+    """Cloud encoder, control encoder, fusion and a skip-add deconvolution decoder."""
+
+    SMALL = ((24, 5), (48, 3), (96, 3), (192, 3))
+    LARGE = ((32, 9), (64, 7), (128, 5), (256, 3), (256, 3))
+    CODE, REDUCED = 256, 32
+
+    def __init__(self, cfg: ModelConfig, out_channels: int):
+        super().__init__()
+        spec = self.LARGE if cfg.large else self.SMALL
+        chans = [c for c, _ in spec]
+        enc, c_in = [], 3
+        for c, k in spec:
+            if cfg.large:
+                enc.append(_block(nn.Conv2d(c_in, c, k, padding=k // 2), c, pool=True))
+            else:
+                enc.append(_block(nn.Conv2d(c_in, c, k, stride=2, padding=k // 2), c))
+            c_in = c
+        self.encoder = nn.ModuleList(enc)
+        self.s_h, self.s_w = cfg.height >> len(spec), cfg.width >> len(spec)
+        flat = self.REDUCED * self.s_h * self.s_w
+        self.reduce = _block(nn.Conv2d(chans[-1], self.REDUCED, 1), self.REDUCED)
+        self.cloud_fc = nn.Sequential(nn.Linear(flat, self.CODE), nn.PReLU())
+        self.control = nn.Sequential(
+            nn.Linear(cfg.control_dim, 64), nn.PReLU(), nn.Linear(64, 128), nn.PReLU()
+        )
+        self.fuse = nn.Sequential(nn.Linear(self.CODE + 128, self.CODE), nn.PReLU())
+        self.expand_fc = nn.Sequential(nn.Linear(self.CODE, flat), nn.PReLU())
+        self.expand = nn.Conv2d(self.REDUCED, chans[-1], 1)
+        self.expand_act = nn.Sequential(nn.BatchNorm2d(chans[-1]), nn.PReLU(chans[-1]))
+        ups, post = [], []
+        for c_hi, c_lo in zip(chans[:0:-1], chans[-2::-1], strict=True):
+            ups.append(nn.ConvTranspose2d(c_hi, c_lo, 4, stride=2, padding=1))
+            post.append(nn.Sequential(nn.BatchNorm2d(c_lo), nn.PReLU(c_lo)))
+        self.ups, self.post = nn.ModuleList(ups), nn.ModuleList(post)
+        self.head = nn.ConvTranspose2d(chans[0], out_channels, 4, stride=2, padding=1)
+
+    def forward(self, x: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Returns (fused code (B,256), decoder output (B,out,H,W))."""
+        feats = []
+        for block in self.encoder:
+            x = block(x)
+            feats.append(x)
+        z = self.cloud_fc(self.reduce(x).flatten(1))
+        code = self.fuse(torch.cat([z, self.control(u)], 1))
+        y = self.expand_fc(code).view(-1, self.REDUCED, self.s_h, self.s_w)
+        y = self.expand_act(self.expand(y) + feats[-1])
+        for up, post, skip in zip(self.ups, self.post, feats[-2::-1], strict=True):
+            y = post(up(y) + skip)
+        return code, self.head(y)
+
+
+class _Normaliser(nn.Module):
+    """Input and control normalisation, stored with the weights."""
+
+    def __init__(self, control_dim: int):
+        super().__init__()
+        self.register_buffer("points_mean", torch.zeros(3))
+        self.register_buffer("points_std", torch.ones(3))
+        self.register_buffer("u_mean", torch.zeros(control_dim))
+        self.register_buffer("u_std", torch.ones(control_dim))
+
+    def forward(self, points: torch.Tensor, valid: torch.Tensor, u: torch.Tensor):
+        x = (points - self.points_mean[:, None, None]) / self.points_std[:, None, None]
+        return x * valid[:, None], (u - self.u_mean) / self.u_std
+
+
+def sharpen(
+    masks: torch.Tensor, sigma: float, gamma: float, generator: torch.Generator | None = None
+) -> torch.Tensor:
+    """Weight sharpening over dim 1: ``normalise(clamp(m + eps, 0)^gamma)`` (in log space)."""
+    if sigma > 0:
+        noise = torch.randn(
+            masks.shape, generator=generator, device=masks.device, dtype=masks.dtype
+        )
+        masks = masks + sigma * noise
+    if gamma == 1.0 and sigma == 0:
+        return masks
+    return torch.softmax(gamma * torch.log(masks.clamp_min(1e-12)), dim=1)
+
+
+def transform_layer(
+    points: torch.Tensor,
+    valid: torch.Tensor,
+    masks: torch.Tensor,
+    T: torch.Tensor,
+    *,
+    centroid: bool,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Blend k rigid motions with the masks (paper, Eq. 3).
+
+    Args:
+        points: (B,3,H,W) input cloud; valid: (B,H,W) bool; masks: (B,k,H,W), summing to 1
+            over k; T: (B,k,3,4) transforms about the pivots.
+        centroid: pivot each mask's rotation about its mask-weighted centroid (else the
+            camera origin, as in the paper).
+
+    Returns:
+        (B,3,H,W) ``y_j = sum_i m_ij (R_i (x_j - c_i) + c_i + t_i)`` (invalid pixels keep
+        their input), and the pivots (B,k,3).
+    """
+    B, k = masks.shape[:2]
+    pts = points.flatten(2).transpose(1, 2)  # (B,N,3)
+    if centroid:
+        m = masks.flatten(2) * valid.flatten(1)[:, None]  # (B,k,N)
+        pivots = (m @ pts) / m.sum(-1, keepdim=True).clamp_min(1e-6)
+    else:
+        pivots = pts.new_zeros(B, k, 3)
+    R = T[..., :3]
+    offset = pivots - torch.einsum("bkij,bkj->bki", R, pivots) + T[..., 3]  # (B,k,3)
+    moved = torch.einsum("bkij,bnj->bkni", R, pts) + offset[:, :, None]
+    y = torch.einsum("bkn,bkni->bin", masks.flatten(2), moved).view_as(points)
+    return torch.where(valid[:, None], y, points), pivots
+
+
+class SE3Net(nn.Module):
+    """SE3-Net: masks, SE(3) transforms and the transform layer."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.norm = _Normaliser(cfg.control_dim)
+        self.backbone = _Backbone(cfg, cfg.k)
+        self.se3_head = nn.Sequential(
+            nn.Linear(_Backbone.CODE, 128), nn.PReLU(), nn.Linear(128, cfg.k * 6)
+        )
+        nn.init.zeros_(self.se3_head[-1].weight)  # every transform starts as the identity
+        nn.init.zeros_(self.se3_head[-1].bias)
+        self.register_buffer("gamma", torch.tensor(1.0))  # sharpening exponent used in eval
+
+    def forward(
+        self,
+        points: torch.Tensor,
+        u: torch.Tensor,
+        valid: torch.Tensor,
+        *,
+        sigma: float = 0.0,
+        gamma: float | None = None,
+        generator: torch.Generator | None = None,
+    ) -> Prediction:
+        """Predict the cloud after one step.
+
+        Args:
+            points: (B,3,H,W) input cloud, camera frame (m). u: (B,n) controls.
+            valid: (B,H,W) bool, pixels that hold a point.
+            sigma, gamma: sharpening noise SD and exponent (training); by default no noise
+                and the exponent training ended with.
+        """
+        x, un = self.norm(points, valid, u)
+        code, logits = self.backbone(x, un)
+        masks = torch.softmax(logits, dim=1)
+        if self.cfg.sharpens:
+            masks = sharpen(masks, sigma, float(self.gamma) if gamma is None else gamma, generator)
+        B, k = masks.shape[:2]
+        T = params_to_transform(self.se3_head(code).view(B, k, 6))  # (B,k,3,4)
+        y, pivots = transform_layer(points, valid, masks, T, centroid=self.cfg.pivot == "centroid")
+        return Prediction(y, masks, T, pivots)
+
+
+class FlowNet(nn.Module):
+    """The paper's flow baseline: a conv/deconv net that predicts per-point 3D flow."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.norm = _Normaliser(cfg.control_dim)
+        self.backbone = _Backbone(cfg, 3)
+        nn.init.zeros_(self.backbone.head.weight)  # starts predicting no motion
+        nn.init.zeros_(self.backbone.head.bias)
+
+    def forward(
+        self, points: torch.Tensor, u: torch.Tensor, valid: torch.Tensor, **_: object
+    ) -> Prediction:
+        x, un = self.norm(points, valid, u)
+        _, flow = self.backbone(x, un)
+        y = torch.where(valid[:, None], points + FLOW_SCALE_M * flow, points)
+        return Prediction(y, None, None, None)
+
+
+def build_model(cfg: ModelConfig) -> nn.Module:
+    """The network for ``cfg.variant``."""
+    return FlowNet(cfg) if cfg.is_flow else SE3Net(cfg)
+
+
+def n_parameters(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())
+
+
+def sharpening(it: int, iters: int, cfg: ModelConfig) -> tuple[float, float]:
+    """(sigma, gamma) at iteration ``it`` of ``iters``: sigma ramps from 0 to its maximum
+    over 80 % of the run, gamma from 1 to its maximum over the first half (the authors'
+    schedule, scaled to the run's length); (0, 1) for variants without sharpening."""
+    if not cfg.sharpens:
+        return 0.0, 1.0
+    sigma = cfg.sigma_max * min(1.0, it / max(1.0, 0.8 * iters))
+    gamma = 1.0 + (cfg.gamma_max - 1.0) * min(1.0, it / max(1.0, 0.5 * iters))
+    return sigma, gamma

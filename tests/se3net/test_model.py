@@ -1,0 +1,104 @@
+import dataclasses
+
+import pytest
+import torch
+
+from se3net.model import (
+    VARIANTS,
+    ModelConfig,
+    build_model,
+    n_parameters,
+    sharpen,
+    sharpening,
+    transform_layer,
+)
+from se3net.se3 import params_to_transform
+
+
+def _cloud(B=2, H=32, W=32):
+    g = torch.Generator().manual_seed(0)
+    pts = torch.randn(B, 3, H, W, generator=g) * 0.1 + torch.tensor([0.0, 0.0, 0.8])[:, None, None]
+    valid = torch.rand(B, H, W, generator=g) > 0.1
+    return pts * valid[:, None], valid
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_every_variant_starts_by_predicting_no_motion(variant):
+    cfg = ModelConfig(variant=variant, height=64, width=64)
+    model = build_model(cfg).eval()
+    pts, valid = _cloud(3, 64, 64)
+    with torch.no_grad():
+        pred = model(pts, torch.randn(3, 4), valid)
+    torch.testing.assert_close(pred.points, pts, atol=1e-6, rtol=0)
+
+
+def test_parameter_counts():
+    small = n_parameters(build_model(ModelConfig("se3net")))
+    assert 0.8e6 < small < 1.3e6  # "about 1 M parameters at 64x64"
+    assert n_parameters(build_model(ModelConfig("se3net-large"))) > 2.5 * small
+    assert n_parameters(build_model(ModelConfig("flow"))) == pytest.approx(small, rel=0.1)
+
+
+@pytest.mark.parametrize("centroid", [False, True])
+def test_transform_layer_gradients_match_numeric_ones(centroid):
+    B, k, H, W = 1, 3, 4, 5
+    pts, valid = _cloud(B, H, W)
+    pts = pts.double().requires_grad_()
+    logits = torch.randn(B, k, H, W, dtype=torch.float64, requires_grad=True)
+    params = (0.2 * torch.randn(B, k, 6, dtype=torch.float64)).requires_grad_()
+
+    def f(p, lg, pr):
+        return transform_layer(
+            p, valid, torch.softmax(lg, 1), params_to_transform(pr), centroid=centroid
+        )[0]
+
+    assert torch.autograd.gradcheck(f, (pts, logits, params))
+
+
+def test_transform_layer_applies_a_rigid_motion_to_a_binary_mask():
+    pts, valid = _cloud(1, 8, 8)
+    pts, valid[:] = pts.double(), True
+    masks = torch.zeros(1, 2, 8, 8, dtype=torch.float64)
+    masks[:, 0, :4], masks[:, 1, 4:] = 1, 1
+    T = params_to_transform(
+        torch.tensor([[[0, 0, 0, 0, 0, 0], [0.01, 0.02, 0, 0, 0, 0.3]]], dtype=torch.float64)
+    )
+    for centroid in (False, True):
+        y, piv = transform_layer(pts, valid, masks, T, centroid=centroid)
+        torch.testing.assert_close(y[:, :, :4], pts[:, :, :4])
+        moved = y[0, :, 4:].reshape(3, -1).T
+        src = pts[0, :, 4:].reshape(3, -1).T
+        # a rigid motion keeps distances
+        torch.testing.assert_close(
+            torch.cdist(moved, moved), torch.cdist(src, src), atol=1e-5, rtol=0
+        )
+        if centroid:  # the centroid moves by the translation alone
+            torch.testing.assert_close(
+                moved.mean(0),
+                src.mean(0) + torch.tensor([0.01, 0.02, 0], dtype=torch.float64),
+                atol=1e-6,
+                rtol=0,
+            )
+
+
+def test_sharpening_drives_masks_towards_binary():
+    g = torch.Generator().manual_seed(0)
+    masks = torch.softmax(torch.randn(64, 4, 8, 8, generator=g), 1)
+    plain = masks.max(1).values.mean()
+    sharp = sharpen(masks, 0.0, 30.0).max(1).values.mean()
+    noisy = sharpen(masks, 0.1, 30.0, torch.Generator().manual_seed(1)).max(1).values.mean()
+    assert plain < 0.7 and sharp > 0.95 and noisy > 0.9
+    torch.testing.assert_close(sharpen(masks, 0.1, 30.0).sum(1), torch.ones(64, 8, 8))
+    cfg = ModelConfig()
+    assert sharpening(0, 1000, cfg) == (0.0, 1.0)
+    assert sharpening(1000, 1000, cfg) == (cfg.sigma_max, cfg.gamma_max)
+    sig, gam = sharpening(250, 1000, cfg)
+    assert 0 < sig < cfg.sigma_max and 1 < gam < cfg.gamma_max
+    assert sharpening(1000, 1000, dataclasses.replace(cfg, variant="no-penalty")) == (0.0, 1.0)
+
+
+def test_bad_configs_are_refused():
+    with pytest.raises(ValueError, match="unknown variant 'big'.*se3net-large"):
+        ModelConfig(variant="big")
+    with pytest.raises(ValueError, match="divisible by 32"):
+        ModelConfig(variant="se3net-large", height=48, width=48)

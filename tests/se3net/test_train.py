@@ -1,0 +1,156 @@
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import torch
+
+import se3net.train as train_mod
+from scenarios import load_scenario
+from se3net.checkpoint import CheckpointError, load_checkpoint, read_checkpoint
+from se3net.data import PushDataset
+from se3net.evaluate import evaluate
+from se3net.metrics import point_loss
+from se3net.model import ModelConfig, build_model
+from se3net.train import TrainConfig, TrainingDiverged, fit_normalisation, train
+from tests.conftest import with_fields
+
+
+def test_tiny_se3net_overfits_a_handful_of_examples(tiny_data):
+    torch.manual_seed(0)
+    ds = PushDataset(tiny_data, split="train")
+    moving = [
+        i
+        for i in range(len(ds))
+        if (ds[i]["target"][0] - ds[i]["points"]).norm(dim=0)[ds[i]["part"] >= 2].max() > 2e-3
+    ]
+    b = ds.batch(moving[:4] + list(range(4)))
+    model = build_model(ModelConfig(height=32, width=32, k=4))
+    fit_normalisation(model, ds, np.random.default_rng(0), n=64)
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+
+    def loss() -> torch.Tensor:
+        pred = model(b["points"], b["u"][:, 0], b["valid"]).points
+        return point_loss(pred, b["target"][:, 0], b["target_valid"][:, 0], b["points"])
+
+    first = float(loss().detach())
+    for _ in range(250):
+        opt.zero_grad()
+        loss().backward()
+        opt.step()
+    model.eval()
+    assert float(loss().detach()) < first / 10
+
+
+def _cfg(tiny_data, out, **kw) -> TrainConfig:
+    base = dict(
+        data=str(tiny_data), out=str(out), iters=8, batch=4, eval_every=4, val_examples=8, k=3
+    )
+    return TrainConfig(**{**base, **kw})
+
+
+def test_resume_gives_the_same_weights_as_an_uninterrupted_run(tiny_data, tmp_path, monkeypatch):
+    train(_cfg(tiny_data, tmp_path / "a"), progress=False)
+    real = train_mod.validate
+    calls = []
+
+    def interrupt(*args, **kw):
+        if len(calls) == 1:
+            raise KeyboardInterrupt
+        calls.append(1)
+        return real(*args, **kw)
+
+    monkeypatch.setattr(train_mod, "validate", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        train(_cfg(tiny_data, tmp_path / "b"), progress=False)
+    assert read_checkpoint(tmp_path / "b" / "last.pt")["train_state"]["iteration"] == 4
+    monkeypatch.setattr(train_mod, "validate", real)
+    with pytest.raises(FileExistsError, match="--resume"):
+        train(_cfg(tiny_data, tmp_path / "b"), progress=False)
+    train(_cfg(tiny_data, tmp_path / "b"), resume=True, progress=False)
+    a, b = read_checkpoint(tmp_path / "a" / "last.pt"), read_checkpoint(tmp_path / "b" / "last.pt")
+    for k in a["state_dict"]:
+        assert torch.equal(a["state_dict"][k], b["state_dict"][k]), k
+    lines = [json.loads(x) for x in (tmp_path / "b" / "metrics.jsonl").read_text().splitlines()]
+    assert [x["iteration"] for x in lines] == [4, 8]
+    with pytest.raises(ValueError, match="other settings"):
+        train(_cfg(tiny_data, tmp_path / "b", lr=0.5), resume=True, progress=False)
+
+
+def test_nan_loss_stops_with_a_clear_message_and_keeps_the_last_good_checkpoint(
+    tiny_data, tmp_path, monkeypatch
+):
+    real = train_mod.point_loss
+    calls = []
+
+    def nan_later(*args):
+        calls.append(1)
+        return real(*args) * (float("nan") if len(calls) > 5 else 1.0)
+
+    monkeypatch.setattr(train_mod, "point_loss", nan_later)
+    with pytest.raises(
+        TrainingDiverged, match=r"loss became nan at step \d+;.*last good state \(iteration 4\)"
+    ):
+        train(_cfg(tiny_data, tmp_path), progress=False)
+    blob = read_checkpoint(tmp_path / "last.pt")
+    assert blob["train_state"]["iteration"] == 4
+    assert all(
+        torch.isfinite(v).all() for v in blob["state_dict"].values() if v.is_floating_point()
+    )
+
+
+def test_mismatched_checkpoints_are_refused(tiny_data, tmp_path):
+    train(_cfg(tiny_data, tmp_path, iters=4), progress=False)
+    path = tmp_path / "best.pt"
+    tiny = load_scenario("tiny")
+    model, blob = load_checkpoint(path, scenario=tiny, variant="se3net")
+    assert blob["model"]["height"] == 32 and not model.training
+    with pytest.raises(CheckpointError, match="is a 'se3net' model, not 'flow'"):
+        load_checkpoint(path, variant="flow")
+    with pytest.raises(
+        CheckpointError, match=r"camera\.width: model has 32, scenario 'single_box' has 64"
+    ):
+        load_checkpoint(path, scenario=load_scenario("single_box"))
+    with pytest.raises(CheckpointError, match=r"action\.max_speed_m_s"):
+        load_checkpoint(path, scenario=with_fields(tiny, "action", max_speed_m_s=0.3))
+    broken = tmp_path / "broken.pt"
+    broken.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with pytest.raises(CheckpointError, match="cannot be read"):
+        load_checkpoint(broken)
+    with pytest.raises(CheckpointError, match="does not exist"):
+        load_checkpoint(tmp_path / "nope.pt")
+    blob = read_checkpoint(path)
+    blob["model"] = dataclasses.asdict(ModelConfig(variant="se3net", k=5, height=32, width=32))
+    torch.save(blob, tmp_path / "other_k.pt")
+    with pytest.raises(CheckpointError, match="does not fit the se3net network"):
+        load_checkpoint(tmp_path / "other_k.pt")
+
+
+def test_bad_training_settings_are_refused(tiny_data, tmp_path):
+    with pytest.raises(ValueError, match="--iters must be positive"):
+        _cfg(tiny_data, tmp_path, iters=0)
+    with pytest.raises(ValueError, match="unknown variant"):
+        train(_cfg(tiny_data, tmp_path, variant="huge"), progress=False)
+    with pytest.raises(FileNotFoundError, match="nothing to resume"):
+        train(_cfg(tiny_data, tmp_path / "fresh"), resume=True, progress=False)
+
+
+def test_eval_writes_the_table_json_and_pictures(tiny_data, tmp_path):
+    train(_cfg(tiny_data, tmp_path / "se3", iters=4), progress=False)
+    train(_cfg(tiny_data, tmp_path / "flow", iters=4, variant="flow"), progress=False)
+    paths = [tmp_path / "se3" / "best.pt", tmp_path / "flow" / "best.pt"]
+    results = evaluate(paths, tiny_data, tmp_path / "eval", max_examples=40)
+    table = (tmp_path / "eval" / "table.md").read_text()
+    assert "se3 (se3net)" in table and "flow (flow)" in table and "no-motion" in table
+    figures = json.loads((tmp_path / "eval" / "eval.json").read_text())
+    se3 = figures["se3"]
+    assert se3["no_motion_mse"] > 0 and se3["ratio_to_no_motion"] == pytest.approx(
+        se3["flow_mse"] / se3["no_motion_mse"], rel=1e-6
+    )
+    assert (
+        0 < se3["mask_binariness"] <= 1 and 0 <= se3["iou"] <= 1 and len(se3["multi_step_mse"]) == 5
+    )
+    assert figures["flow"]["mask_binariness"] is None
+    # a model that has barely trained is close to no motion
+    assert 0.5 < results[1].ratio_to_no_motion < 1.5
+    assert (tmp_path / "eval" / "se3_examples.png").read_bytes()[:4] == b"\x89PNG"
