@@ -269,8 +269,9 @@ class FlowNet(nn.Module):
         self.cfg = cfg
         self.norm = _Normaliser(cfg.control_dim)
         self.backbone = _Backbone(cfg, 3)
-        nn.init.zeros_(self.backbone.head.weight)  # starts predicting no motion
-        nn.init.zeros_(self.backbone.head.bias)
+        with torch.no_grad():  # starts near no motion, with gradients flowing from the start
+            self.backbone.head.weight.mul_(0.01)
+            self.backbone.head.bias.zero_()
 
     def forward(
         self, points: torch.Tensor, u: torch.Tensor, valid: torch.Tensor, **_: object
