@@ -162,7 +162,7 @@ class PushWorld:
             "overlap in objects.region_m; enlarge the region or lower objects.min_gap_m"
         )
 
-    def _build(self, poses: list[tuple[float, float, float]]) -> None:
+    def _build(self, poses: list[tuple[float, float, float]], *, settle: bool = True) -> None:
         s = self.scenario
         self.model = mujoco.MjModel.from_xml_string(build_mjcf(s, self.objects))
         self.data = mujoco.MjData(self.model)
@@ -207,7 +207,8 @@ class PushWorld:
         self.qp_failures = 0
         self._done, self._reason = False, ""
         mujoco.mj_forward(m, d)
-        self._advance(np.zeros(2), round(SETTLE_S / s.action.physics_dt_s))
+        if settle:
+            self._advance(np.zeros(2), round(SETTLE_S / s.action.physics_dt_s))
         d.time = 0.0
 
     def teleport_pusher(self, xy_m: np.ndarray) -> Observation:
@@ -267,6 +268,47 @@ class PushWorld:
         self._advance(a, self.n_substeps)
         self._check_end()
         return self.observe()
+
+    def advance(self, action: np.ndarray) -> np.ndarray:
+        """Like ``step`` but without rendering: returns the objects' planar poses (n,3).
+        The fast path for simulating candidate actions (the oracle backend)."""
+        a = self.check_action(action)
+        if self._done:
+            raise EpisodeEnded(f"the episode ended ({self._reason}); call reset(seed)")
+        self._advance(a, self.n_substeps)
+        self._check_end()
+        T = self.part_poses()[FIRST_OBJECT_PART:]
+        return np.column_stack([T[:, 0, 3], T[:, 1, 3], np.arctan2(T[:, 1, 0], T[:, 0, 0])])
+
+    def snapshot(self) -> dict[str, np.ndarray | float | bool | str]:
+        """The dynamic state (physics, servo targets, episode status), for ``restore``."""
+        d = self.data
+        return {
+            "qpos": d.qpos.copy(), "qvel": d.qvel.copy(), "act": d.act.copy(),
+            "ctrl": d.ctrl.copy(), "time": float(d.time), "q_ref": self._q_ref.copy(),
+            "done": self._done, "reason": self._reason,
+        }  # fmt: skip
+
+    def restore(self, state: dict) -> None:
+        """Return to a ``snapshot`` of this world or of a ``clone`` of it."""
+        d = self.data
+        d.qpos[:], d.qvel[:], d.act[:], d.ctrl[:] = (
+            state["qpos"],
+            state["qvel"],
+            state["act"],
+            state["ctrl"],
+        )
+        d.time, self._q_ref = state["time"], state["q_ref"].copy()
+        self._done, self._reason = state["done"], state["reason"]
+        mujoco.mj_forward(self.model, d)
+
+    def clone(self) -> PushWorld:
+        """An independent world with the same objects and state (its own model and data)."""
+        other = PushWorld(self.scenario, width=self.camera.width, height=self.camera.height)
+        other.objects = list(self.objects)
+        other._build([(0.0, 0.0, 0.0)] * len(self.objects), settle=False)
+        other.restore(self.snapshot())
+        return other
 
     def _advance(self, v_xy: np.ndarray, n_steps: int) -> None:
         m, d = self.model, self.data

@@ -13,12 +13,16 @@ from sim.dataset import DataConfig, generate
 @pytest.fixture(scope="module")
 def unseen(tmp_path_factory):
     root = tmp_path_factory.mktemp("unseen")
-    generate(DataConfig("single_box", episodes=3, seed=123, episodes_per_shard=3), root, progress=False)
+    generate(
+        DataConfig("single_box", episodes=3, seed=123, episodes_per_shard=3), root, progress=False
+    )
     return root
 
 
 def test_default_model_fits_single_box_and_beats_no_motion_on_unseen_episodes(unseen):
-    model, blob = load_checkpoint(DEFAULT_MODEL, scenario=load_scenario("single_box"), variant="se3net")
+    model, blob = load_checkpoint(
+        DEFAULT_MODEL, scenario=load_scenario("single_box"), variant="se3net"
+    )
     assert DEFAULT_MODEL.stat().st_size < 8e6
     ds = PushDataset(unseen, split="train")  # seed 123: episodes the model never saw
     b = ds.batch(range(len(ds)))

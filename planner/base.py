@@ -1,0 +1,131 @@
+"""One interface for every optimiser: ``plan(state) -> (action, info)`` and ``reset()``.
+
+Each planner keeps its warm start explicit: the previous plan shifted by one step (its last
+action repeated). All actions stay inside the scenario's bounds.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from planner.cost import PushCost
+from planner.dynamics import Dynamics, PlanState, Rollout
+from scenarios import Scenario
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Settings shared by the optimisers (each reads the ones it uses)."""
+
+    horizon: int = 4
+    """actions per plan (0.15 s each)"""
+    samples: int = 48
+    """candidate sequences per iteration (CEM, MPPI; initial samples for grad)"""
+    iterations: int = 3
+    """optimiser iterations per replan"""
+    elites: int = 6
+    """CEM: elite sequences refitted"""
+    init_std: float = 0.5
+    """sampling SD at a fresh start, as a fraction of the action bound"""
+    min_std: float = 0.05
+    """CEM: the SD never shrinks below this fraction of the bound"""
+    colour: float = 0.0
+    """CEM: temporal correlation of the noise (AR(1) coefficient; 0 = white)"""
+    temperature: float = 0.05
+    """MPPI: temperature on min-max normalised costs"""
+    grad_steps: int = 10
+    """grad: Adam steps"""
+    grad_lr: float = 0.02
+    """grad: Adam step size (m/s)"""
+    grad_init_samples: int = 16
+    """grad: start from the best of the warm start and this many random sequences"""
+    trust_radius: float = 0.05
+    """SQP: initial trust region on each action change (m/s)"""
+    seed: int = 0
+    """seed of the planner's generator"""
+
+    def __post_init__(self) -> None:
+        for name in ("horizon", "samples", "iterations", "elites", "grad_steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)}")
+        if self.elites > self.samples:
+            raise ValueError(f"elites ({self.elites}) cannot exceed samples ({self.samples})")
+
+
+@dataclass
+class PlanInfo:
+    """What a replan found."""
+
+    actions: np.ndarray
+    """(H,2) the chosen sequence"""
+    predicted_poses: np.ndarray
+    """(H,3) the object poses the backend predicts for it"""
+    predicted_pusher: np.ndarray
+    """(H,2) the pusher positions it predicts"""
+    cost: float
+    iterations: int
+    wall_ms: float
+
+
+class Planner:
+    """Base class: subclasses implement ``_optimise``."""
+
+    name = "base"
+
+    def __init__(
+        self,
+        dynamics: Dynamics,
+        cost: PushCost,
+        scenario: Scenario,
+        cfg: PlannerConfig = PlannerConfig(),
+    ):
+        self.dynamics, self.cost, self.cfg = dynamics, cost, cfg
+        self.bound = scenario.action.max_speed_m_s
+        self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the warm start (a new episode)."""
+        self.nominal = torch.zeros(self.cfg.horizon, 2)
+        self.cost.last_action = torch.zeros(2)
+        self.gen.manual_seed(self.cfg.seed)
+
+    def clamp(self, U: torch.Tensor) -> torch.Tensor:
+        return U.clamp(-self.bound, self.bound)
+
+    def evaluate(self, state: PlanState, U: torch.Tensor) -> tuple[torch.Tensor, Rollout]:
+        """Costs (K,) and rollouts of sequences U (K,H,2)."""
+        rollout = self.dynamics.rollout(state, U)
+        return self.cost.cost(state, rollout, U), rollout
+
+    def noise(self, K: int) -> torch.Tensor:
+        """Standard normal noise (K,H,2) from the planner's generator."""
+        return torch.randn(K, self.cfg.horizon, 2, generator=self.gen)
+
+    def _optimise(self, state: PlanState, U0: torch.Tensor) -> tuple[torch.Tensor, int]:
+        raise NotImplementedError
+
+    def plan(self, state: PlanState) -> tuple[np.ndarray, PlanInfo]:
+        """The action (2,) to apply now, and the plan it came from."""
+        t0 = time.perf_counter()
+        U, iterations = self._optimise(state, self.clamp(self.nominal))
+        U = self.clamp(U.detach())
+        with torch.no_grad():
+            cost, rollout = self.evaluate(state, U[None])
+        self.nominal = torch.cat([U[1:], U[-1:]])  # warm start for the next replan
+        self.cost.last_action = U[0].clone()
+        # float32 0.15 is 0.15000000596: clip in float64 so that the world accepts the action
+        actions = np.clip(U.double().numpy(), -self.bound, self.bound)
+        info = PlanInfo(
+            actions=actions,
+            predicted_poses=rollout.object_poses[0].detach().cpu().numpy(),
+            predicted_pusher=rollout.pusher_xy[0].detach().cpu().numpy(),
+            cost=float(cost[0]),
+            iterations=iterations,
+            wall_ms=1e3 * (time.perf_counter() - t0),
+        )
+        return actions[0].copy(), info

@@ -1,0 +1,134 @@
+"""The push cost, written as weighted residuals so that sampling planners sum their squares
+and the SQP planner linearises them (Gauss-Newton).
+
+Per step h of a rollout: the object's position error and symmetry-aware yaw error to the goal
+(the terminal step weighted more than the running steps), a shaping term that draws the pusher
+to the object's far side from the goal while the object is predicted not to move, penalties
+on action size and change, and a penalty for the pusher leaving the workspace.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from planner.dynamics import PlanState, Rollout
+from scenarios import Scenario
+from sim.mjcf import ObjectSpec
+
+
+@dataclass(frozen=True)
+class CostConfig:
+    """Weights and scales of the push cost."""
+
+    pos_scale_m: float = 0.02
+    """position error that costs 1 (per step, before weights)"""
+    yaw_scale_rad: float = math.radians(10.0)
+    """yaw error that costs 1"""
+    w_yaw: float = 0.5
+    """weight of the yaw error relative to the position error"""
+    w_running: float = 0.3
+    """weight of the pose error at steps before the last"""
+    w_terminal: float = 1.0
+    """weight of the pose error at the last step"""
+    w_shaping: float = 0.5
+    """weight of the pusher's distance to the pre-push point, while nothing moves"""
+    shaping_scale_m: float = 0.03
+    """pusher distance that costs 1 in the shaping term"""
+    moving_m: float = 0.005
+    """predicted object displacement over the horizon above which shaping fades out"""
+    w_action: float = 0.02
+    """weight of |a|^2 / bound^2"""
+    w_smooth: float = 0.05
+    """weight of |a_h - a_{h-1}|^2 / bound^2 (a_{-1}: the last executed action)"""
+    w_workspace: float = 10.0
+    """weight of the pusher's distance outside the workspace, per cm"""
+    workspace_margin_m: float = 0.03
+    """the workspace is the table top shrunk by this margin"""
+
+
+def yaw_period(spec: ObjectSpec) -> float | None:
+    """The angle after which the object looks the same (None: any angle, a cylinder)."""
+    if spec.shape == "cylinder":
+        return None
+    sx, sy, _ = spec.size_m
+    return math.pi / 2 if abs(sx - sy) < 1e-3 else math.pi
+
+
+def wrap(angle: torch.Tensor, period: float) -> torch.Tensor:
+    """Angle difference wrapped to [-period/2, period/2)."""
+    return torch.remainder(angle + period / 2, period) - period / 2
+
+
+def check_goal(scenario: Scenario, goal: torch.Tensor | tuple[float, float, float]) -> torch.Tensor:
+    """The goal (x_m, y_m, yaw_rad) as a tensor, or a ValueError saying what is wrong."""
+    g = torch.as_tensor(goal, dtype=torch.float32).flatten()
+    if g.numel() != 3:
+        raise ValueError(f"a goal is x, y, yaw (3 numbers); got {g.numel()}")
+    if not torch.isfinite(g).all():
+        raise ValueError(f"goal {g.tolist()} is not finite")
+    hx, hy = (s / 2 for s in scenario.table.size_m)
+    if abs(float(g[0])) > hx or abs(float(g[1])) > hy:
+        raise ValueError(
+            f"goal position ({float(g[0]):.3f}, {float(g[1]):.3f}) m is off the table "
+            f"(x in [{-hx}, {hx}], y in [{-hy}, {hy}] for scenario {scenario.name})"
+        )
+    return g
+
+
+class PushCost:
+    """Residuals (K, m) of rollouts for one goal; ``cost`` is their sum of squares.
+
+    Args:
+        scenario: bounds of the actions and the table.
+        goal: (3,) goal pose x_m, y_m, yaw_rad.
+        cfg: weights.
+    """
+
+    def __init__(self, scenario: Scenario, goal: torch.Tensor, cfg: CostConfig = CostConfig()):
+        self.cfg, self.goal = cfg, check_goal(scenario, goal)
+        self.bound = scenario.action.max_speed_m_s
+        self.half = torch.tensor(scenario.table.size_m) / 2 - cfg.workspace_margin_m
+        self.last_action = torch.zeros(2)
+
+    def pre_push_point(self, state: PlanState) -> torch.Tensor:
+        """Where the pusher should be to push the object toward the goal: behind it."""
+        obj = state.object_pose[:2]
+        d = self.goal[:2] - obj
+        d = d / d.norm().clamp_min(1e-6)
+        back = state.object_spec.footprint_radius_m + 0.02
+        return obj - back * d
+
+    def residuals(self, state: PlanState, rollout: Rollout, actions: torch.Tensor) -> torch.Tensor:
+        c = self.cfg
+        K, H, _ = actions.shape
+        goal = self.goal.to(actions)
+        w = torch.full((H,), math.sqrt(c.w_running), dtype=actions.dtype, device=actions.device)
+        w[-1] = math.sqrt(c.w_terminal)
+        pos = (rollout.object_poses[..., :2] - goal[:2]) / c.pos_scale_m * w[None, :, None]
+        res = [pos.flatten(1)]
+        period = yaw_period(state.object_spec)
+        if period is not None:
+            yaw = wrap(rollout.object_poses[..., 2] - goal[2], period) / c.yaw_scale_rad
+            res.append(math.sqrt(c.w_yaw) * yaw * w)
+        moved_sq = ((rollout.object_poses[:, -1, :2] - state.object_pose[:2].to(actions)) ** 2).sum(
+            -1
+        )
+        # sqrt of the gate exp(-moved^2 / m^2), written without sqrt (its gradient at 0 is NaN)
+        sqrt_gate = torch.exp(-0.5 * moved_sq / c.moving_m**2)
+        dist = (
+            rollout.pusher_xy[:, -1] - self.pre_push_point(state).to(actions)
+        ) / c.shaping_scale_m
+        res.append(math.sqrt(c.w_shaping) * sqrt_gate[:, None] * dist)
+        res.append(math.sqrt(c.w_action) * actions.flatten(1) / self.bound)
+        prev = torch.cat([self.last_action.to(actions).expand(K, 1, 2), actions[:, :-1]], 1)
+        res.append(math.sqrt(c.w_smooth) * (actions - prev).flatten(1) / self.bound)
+        out = torch.relu(rollout.pusher_xy.abs() - self.half.to(actions)) / 0.01
+        res.append(math.sqrt(c.w_workspace) * out.flatten(1))
+        return torch.cat(res, 1)
+
+    def cost(self, state: PlanState, rollout: Rollout, actions: torch.Tensor) -> torch.Tensor:
+        """(K,) total cost of each candidate."""
+        return (self.residuals(state, rollout, actions) ** 2).sum(1)

@@ -1,0 +1,223 @@
+"""The dynamics protocol the planner talks to, and its backends.
+
+A backend takes the current :class:`PlanState` and a batch of action sequences ``(K,H,2)``
+and returns a :class:`Rollout`: the pushed object's predicted planar poses and the pusher's
+positions over the horizon. Backends:
+
+- ``LearnedDynamics``: an SE3-Net or flow-net checkpoint rolled forward, each predicted cloud
+  fed back as the next input (as the paper does for multi-step prediction), the pusher
+  position integrated from the commands into the control vector; the object's pose at each
+  step is a rigid fit (weighted Kabsch) of its predicted points to its current points,
+  composed with its current pose. Differentiable end to end with respect to the actions.
+- ``OracleDynamics``: the MuJoCo world itself, copied and simulated for each candidate: the
+  upper bound any learned model is measured against.
+- ``NoMotionDynamics``: nothing but the pusher moves: the lower bound.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import torch
+
+from scenarios import Scenario
+from se3net.se3 import rigid_fit
+from sim.mjcf import ObjectSpec
+from sim.world import FIRST_OBJECT_PART, Observation, PushWorld
+
+BACKENDS = ("se3net", "flow", "oracle", "no-motion")
+
+
+@dataclass(frozen=True)
+class PlanState:
+    """What the planner knows at one control step (the object's pixels and pose stand in for
+    an object tracker, as the paper used DART; the object's motion comes from the backend)."""
+
+    points: torch.Tensor
+    """(3,H,W) observed cloud, camera frame (m)"""
+    valid: torch.Tensor
+    """(H,W) bool, pixels that hold a point"""
+    object_mask: torch.Tensor
+    """(H,W) bool, the pushed object's pixels"""
+    object_pose: torch.Tensor
+    """(3,) x_m, y_m, yaw_rad of the pushed object, world frame"""
+    pusher_xy: torch.Tensor
+    """(2,) pusher tip position, world frame"""
+    object_spec: ObjectSpec
+    """shape and size of the pushed object (for yaw symmetry and the pre-push point)"""
+    world: PushWorld | None = None
+    """the simulator, for the oracle backend only"""
+    object_index: int = 0
+
+
+def plan_state(obs: Observation, world: PushWorld, object_index: int = 0) -> PlanState:
+    """The planner's view of a world observation."""
+    return PlanState(
+        points=torch.from_numpy(obs.points_cam).float(),
+        valid=torch.from_numpy(obs.valid),
+        object_mask=torch.from_numpy(obs.part == FIRST_OBJECT_PART + object_index),
+        object_pose=torch.from_numpy(obs.object_poses[object_index]).float(),
+        pusher_xy=torch.from_numpy(obs.pusher_xy_m).float(),
+        object_spec=world.objects[object_index],
+        world=world,
+        object_index=object_index,
+    )
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """Predictions for K action sequences over H steps."""
+
+    object_poses: torch.Tensor
+    """(K,H,3) the pushed object's pose after each step (x_m, y_m, yaw_rad)"""
+    pusher_xy: torch.Tensor
+    """(K,H,2) the pusher's position after each step"""
+    clouds: torch.Tensor | None = None
+    """(K,H,3,Hi,Wi) predicted clouds, if asked for (learned backends)"""
+
+
+class Dynamics(Protocol):
+    """Anything that predicts how the object moves under candidate pushes."""
+
+    name: str
+    differentiable: bool
+
+    def rollout(
+        self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False
+    ) -> Rollout: ...
+
+
+def integrate_pusher(state: PlanState, actions: torch.Tensor, dt: float) -> torch.Tensor:
+    """(K,H,2) pusher positions after each step, integrated from the commanded velocities."""
+    return state.pusher_xy.to(actions) + dt * torch.cumsum(actions, dim=1)
+
+
+class NoMotionDynamics:
+    """Predicts that the object never moves (the lower bound)."""
+
+    name, differentiable = "no-motion", True
+
+    def __init__(self, scenario: Scenario):
+        self.dt = scenario.action.dt_control_s
+
+    def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
+        K, H, _ = actions.shape
+        poses = state.object_pose.to(actions).expand(K, H, 3) + 0.0 * actions.sum()
+        return Rollout(poses, integrate_pusher(state, actions, self.dt))
+
+
+class OracleDynamics:
+    """The true simulator: each candidate is simulated from a copy of the world's state."""
+
+    name, differentiable = "oracle", False
+
+    def __init__(self, scenario: Scenario):
+        self.scenario = scenario
+        self._clone: PushWorld | None = None
+        self._source: PushWorld | None = None
+
+    def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
+        if state.world is None:
+            raise ValueError("the oracle backend needs the simulator in the plan state")
+        if self._source is not state.world or self._clone.model.nbody != state.world.model.nbody:
+            self._clone, self._source = state.world.clone(), state.world  # new episode
+        start = state.world.snapshot()
+        bound = self.scenario.action.max_speed_m_s  # float32 candidates may round past it
+        a = np.clip(actions.detach().cpu().double().numpy(), -bound, bound)
+        K, H, _ = a.shape
+        poses = np.empty((K, H, 3))
+        pusher = np.empty((K, H, 2))
+        site = self._clone._pusher_site
+        for k in range(K):
+            self._clone.restore(start)
+            for h in range(H):
+                if self._clone._done:  # the object fell off: it stays where it was last seen
+                    poses[k, h], pusher[k, h] = poses[k, h - 1], pusher[k, h - 1]
+                    continue
+                poses[k, h] = self._clone.advance(a[k, h])[state.object_index]
+                pusher[k, h] = self._clone.data.site_xpos[site, :2]
+        return Rollout(torch.from_numpy(poses).to(actions), torch.from_numpy(pusher).to(actions))
+
+
+class LearnedDynamics:
+    """An SE3-Net or flow-net checkpoint rolled forward over the horizon.
+
+    Args:
+        model: the network (from ``se3net.checkpoint.load_checkpoint``, checked against the
+            scenario).
+        scenario: the scenario (camera extrinsics, control timing).
+        name: ``"se3net"`` or ``"flow"``.
+    """
+
+    differentiable = True
+
+    def __init__(
+        self, model: torch.nn.Module, scenario: Scenario, *, name: str, device: str = "cpu"
+    ):
+        from sim.camera import DepthCamera
+
+        self.model, self.name, self.device = model.eval(), name, torch.device(device)
+        self.dt = scenario.action.dt_control_s
+        cam = DepthCamera(scenario.camera)
+        self.T_world_cam = torch.from_numpy(cam.T_world_cam).float().to(self.device)
+
+    def _world(self, points: torch.Tensor) -> torch.Tensor:
+        """Camera-frame points (...,N,3) in the world frame."""
+        return points @ self.T_world_cam[:3, :3].T + self.T_world_cam[:3, 3]
+
+    def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
+        K, H, _ = actions.shape
+        actions = actions.to(self.device)
+        pusher = integrate_pusher(state, actions, self.dt)
+        x = state.points.to(self.device).expand(K, -1, -1, -1)
+        valid = state.valid.to(self.device).expand(K, -1, -1)
+        sel = (state.object_mask & state.valid).flatten().nonzero()[:, 0].to(self.device)
+        src = self._world(state.points.to(self.device).flatten(1)[:, sel].T)  # (N,3)
+        pose0 = state.object_pose.to(self.device)
+        centre0 = torch.cat([pose0[:2], src[:, 2].mean()[None]])
+        prev_xy = state.pusher_xy.to(self.device).expand(K, 2)
+        poses, out_clouds = [], []
+        for h in range(H):
+            u = torch.cat([actions[:, h], prev_xy], 1)
+            x = self.model(x, u, valid).points
+            prev_xy = pusher[:, h]
+            if clouds:
+                out_clouds.append(x)
+            if len(sel) >= 3:
+                dst = self._world(x.flatten(2)[:, :, sel].transpose(1, 2))  # (K,N,3)
+                T = rigid_fit(
+                    src.expand(K, -1, -1), dst, torch.ones(K, len(sel), device=self.device)
+                )
+                xy = (T[:, :, :3] @ centre0 + T[:, :, 3])[:, :2]
+                yaw = pose0[2] + torch.atan2(T[:, 1, 0], T[:, 0, 0])
+                poses.append(torch.cat([xy, yaw[:, None]], 1))
+            else:  # the object is out of sight: nothing to predict from
+                poses.append(pose0.expand(K, 3) + 0.0 * x.sum())
+        return Rollout(
+            torch.stack(poses, 1), pusher, torch.stack(out_clouds, 1) if clouds else None
+        )
+
+
+def make_dynamics(
+    name: str, scenario: Scenario, *, model: str | None = None, device: str = "cpu"
+) -> Dynamics:
+    """A backend by name: ``se3net``/``flow`` (a checkpoint; the shipped model by default),
+    ``oracle`` or ``no-motion``.
+
+    Raises:
+        ValueError: an unknown name. CheckpointError: a model that does not fit the scenario.
+    """
+    if name == "oracle":
+        return OracleDynamics(scenario)
+    if name == "no-motion":
+        return NoMotionDynamics(scenario)
+    if name in ("se3net", "flow"):
+        from se3net.checkpoint import DEFAULT_MODEL, load_checkpoint
+
+        path = DEFAULT_MODEL if model in (None, "default") else model
+        net, blob = load_checkpoint(path, scenario=scenario, device=device)
+        kind = "flow" if blob["model"]["variant"].startswith("flow") else "se3net"
+        return LearnedDynamics(net, scenario, name=kind, device=device)
+    raise ValueError(f"unknown dynamics backend {name!r}; known: {', '.join(BACKENDS)}")

@@ -1,0 +1,58 @@
+"""Sampling optimisers: the cross-entropy method and MPPI."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from planner.base import Planner
+from planner.dynamics import PlanState
+
+
+class CEMPlanner(Planner):
+    """Cross-entropy method: sample around a Gaussian, refit it to the elites, keep the best
+    sequence seen (the warm start is always one of the candidates)."""
+
+    name = "cem"
+
+    def _optimise(self, state: PlanState, U0: torch.Tensor) -> tuple[torch.Tensor, int]:
+        c = self.cfg
+        mean, std = U0.clone(), torch.full_like(U0, c.init_std * self.bound)
+        best, best_cost = U0, math.inf
+        for _ in range(c.iterations):
+            eps = self.noise(c.samples)
+            if c.colour > 0:  # AR(1): noise correlated along the horizon
+                for h in range(1, c.horizon):
+                    eps[:, h] = c.colour * eps[:, h - 1] + math.sqrt(1 - c.colour**2) * eps[:, h]
+            U = self.clamp(mean + std * eps)
+            U[0] = mean
+            with torch.inference_mode():
+                cost, _ = self.evaluate(state, U)
+            elite = torch.topk(cost, c.elites, largest=False).indices
+            if cost[elite[0]] < best_cost:
+                best, best_cost = U[elite[0]].clone(), float(cost[elite[0]])
+            mean = U[elite].mean(0)
+            std = U[elite].std(0).clamp_min(c.min_std * self.bound)
+        return best, c.iterations
+
+
+class MPPIPlanner(Planner):
+    """Model-predictive path integral control: the nominal sequence moves to the
+    softmin-weighted mean of noisy samples, with costs min-max normalised so that the
+    temperature does not depend on the cost's scale."""
+
+    name = "mppi"
+
+    def _optimise(self, state: PlanState, U0: torch.Tensor) -> tuple[torch.Tensor, int]:
+        c = self.cfg
+        U = U0.clone()
+        for _ in range(c.iterations):
+            samples = self.clamp(U + c.init_std * self.bound * self.noise(c.samples))
+            samples[0] = U
+            with torch.inference_mode():
+                cost, _ = self.evaluate(state, samples)
+            norm = (cost - cost.min()) / (cost.max() - cost.min()).clamp_min(1e-9)
+            w = torch.softmax(-norm / c.temperature, 0)
+            U = self.clamp((w[:, None, None] * samples).sum(0))
+        return U, c.iterations

@@ -1,0 +1,99 @@
+import numpy as np
+import pytest
+import torch
+
+from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
+from planner.dynamics import LearnedDynamics, NoMotionDynamics
+from se3net.checkpoint import CheckpointError
+from se3net.model import ModelConfig, build_model
+from sim import PushWorld
+
+
+def _approach(world, obs, n=6):
+    for _ in range(n):
+        d = obs.object_poses[0, :2] - obs.pusher_xy_m
+        obs = world.step(0.12 * d / np.linalg.norm(d))
+    return obs
+
+
+def test_oracle_predictions_equal_what_the_world_then_does(tiny):
+    world = PushWorld(tiny)
+    obs = _approach(world, world.reset(2), 3)
+    goal = torch.tensor([*(obs.object_poses[0, :2] + [0.05, 0.0]), 0.0])
+    planner = make_planner(
+        "cem",
+        make_dynamics("oracle", tiny),
+        PushCost(tiny, goal),
+        tiny,
+        PlannerConfig(samples=8, elites=2, iterations=1),
+    )
+    _, info = planner.plan(plan_state(obs, world))
+    for h, a in enumerate(info.actions):
+        obs = world.step(a)
+        np.testing.assert_allclose(obs.object_poses[0], info.predicted_poses[h], atol=1e-6)
+        np.testing.assert_allclose(obs.pusher_xy_m, info.predicted_pusher[h], atol=1e-6)
+
+
+def test_no_motion_predicts_a_still_object_and_an_integrated_pusher(tiny):
+    world = PushWorld(tiny)
+    state = plan_state(world.reset(0), world)
+    U = torch.full((2, 3, 2), 0.1)
+    r = NoMotionDynamics(tiny).rollout(state, U)
+    torch.testing.assert_close(r.object_poses, state.object_pose.expand(2, 3, 3))
+    torch.testing.assert_close(
+        r.pusher_xy[:, -1], (state.pusher_xy + 3 * 0.15 * torch.tensor([0.1, 0.1])).expand(2, 2)
+    )
+
+
+def test_gradients_through_the_se3net_rollout_match_finite_differences(tiny):
+    torch.manual_seed(0)
+    world = PushWorld(tiny)
+    obs = _approach(world, world.reset(2), 4)
+    model = build_model(ModelConfig(height=32, width=32, k=3))
+    with torch.no_grad():  # a model whose predictions depend on the actions
+        model.se3_head[-1].weight.normal_(0, 0.05)
+    model = model.double().eval()
+    dyn = LearnedDynamics(model, tiny, name="se3net")
+    dyn.T_world_cam = dyn.T_world_cam.double()
+    state = plan_state(obs, world)
+    state = type(state)(
+        **{
+            **state.__dict__,
+            "points": state.points.double(),
+            "object_pose": state.object_pose.double(),
+            "pusher_xy": state.pusher_xy.double(),
+        }
+    )
+    goal = torch.tensor([*(obs.object_poses[0, :2] + [0.05, 0.02]), 0.3])
+    cost = PushCost(tiny, goal)
+
+    def f(U):
+        return cost.cost(state, dyn.rollout(state, U), U).sum()
+
+    U = (0.05 * torch.randn(1, 3, 2, dtype=torch.float64)).requires_grad_()
+    f(U).backward()
+    eps = 1e-5
+    numeric = torch.zeros_like(U)
+    for i in range(3):
+        for j in range(2):
+            d = torch.zeros_like(U)
+            d[0, i, j] = eps
+            numeric[0, i, j] = (f(U.detach() + d) - f(U.detach() - d)) / (2 * eps)
+    assert U.grad.abs().max() > 1e-3
+    torch.testing.assert_close(U.grad, numeric, rtol=1e-3, atol=1e-5)
+
+
+def test_backend_errors(tiny):
+    with pytest.raises(
+        ValueError,
+        match="unknown dynamics backend 'mujoco'; known: se3net, flow, oracle, no-motion",
+    ):
+        make_dynamics("mujoco", tiny)
+    with pytest.raises(CheckpointError, match="does not fit scenario 'tiny'"):
+        make_dynamics("se3net", tiny)  # the shipped model is for single_box
+    with pytest.raises(ValueError, match="needs a differentiable backend"):
+        world = PushWorld(tiny)
+        state = plan_state(world.reset(0), world)
+        make_planner(
+            "grad", make_dynamics("oracle", tiny), PushCost(tiny, (0.0, 0.0, 0.0)), tiny
+        ).plan(state)

@@ -1,0 +1,75 @@
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from planner import PLANNERS, PlannerConfig, PushCost, make_planner
+from scenarios import load_scenario
+from tests.planner.toy import TOY_COST, CarriedDisk, optimum, toy_state
+
+SCENARIO = load_scenario("single_box")
+DT, BOUND = SCENARIO.action.dt_control_s, SCENARIO.action.max_speed_m_s
+STRONG = {
+    "cem": PlannerConfig(samples=256, elites=16, iterations=8),
+    "mppi": PlannerConfig(samples=512, iterations=20, init_std=0.2, temperature=0.02),
+    "grad": PlannerConfig(grad_steps=150, grad_lr=0.01),
+    "sqp": PlannerConfig(iterations=8, trust_radius=0.15),
+}
+MARGIN = {"cem": 0.05, "mppi": 0.05, "grad": 0.01, "sqp": 0.01}  # relative, over the optimum
+
+
+@pytest.mark.parametrize("name", PLANNERS)
+@pytest.mark.parametrize("goal", [(0.05, 0.02, 0.0), (0.12, -0.09, 0.0)])
+def test_each_optimiser_reaches_the_known_optimum_within_its_margin(name, goal):
+    state = toy_state()
+    cost = PushCost(SCENARIO, torch.tensor(goal), TOY_COST)
+    planner = make_planner(name, CarriedDisk(DT), cost, SCENARIO, STRONG[name])
+    best = optimum(cost, state, planner.cfg.horizon, DT, BOUND)
+    _, info = planner.plan(state)
+    assert info.cost <= best * (1 + MARGIN[name]) + 1e-3, (info.cost, best)
+    assert np.all(np.abs(info.actions) <= BOUND + 1e-7)
+
+
+@pytest.mark.parametrize("name", PLANNERS)
+def test_bounds_hold_and_the_same_seed_gives_the_same_plan(name):
+    far = (0.28, -0.28, 0.0)  # far enough that every action saturates
+    plans = []
+    for _ in range(2):
+        cost = PushCost(SCENARIO, torch.tensor(far), TOY_COST)
+        planner = make_planner(name, CarriedDisk(DT), cost, SCENARIO, PlannerConfig(seed=3))
+        state = toy_state()
+        seq = []
+        for _ in range(3):
+            a, info = planner.plan(state)
+            assert np.all(np.abs(a) <= BOUND) and np.all(np.abs(info.actions) <= BOUND)
+            seq.append(a)
+            to_goal = np.array(far[:2]) - state.object_pose[:2].numpy()
+            total = info.actions.sum(0)  # the planned displacement heads for the goal
+            assert total @ to_goal / np.linalg.norm(total) / np.linalg.norm(to_goal) > 0.7
+            pose = state.object_pose + torch.tensor([*(DT * a), 0.0], dtype=torch.float32)
+            state = dataclasses.replace(state, object_pose=pose, pusher_xy=pose[:2])
+        plans.append(np.array(seq))
+    np.testing.assert_array_equal(plans[0], plans[1])
+
+
+def test_warm_start_is_the_previous_plan_shifted():
+    cost = PushCost(SCENARIO, torch.tensor((0.1, 0.0, 0.0)), TOY_COST)
+    planner = make_planner("cem", CarriedDisk(DT), cost, SCENARIO)
+    _, info = planner.plan(toy_state())
+    np.testing.assert_array_equal(planner.nominal[:-1].numpy(), info.actions[1:])
+    planner.reset()
+    assert not planner.nominal.any()
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ValueError, match="unknown planner 'ilqr'; known: cem, mppi, grad, sqp"):
+        make_planner("ilqr", CarriedDisk(DT), PushCost(SCENARIO, (0.0, 0.0, 0.0)), SCENARIO)
+    with pytest.raises(ValueError, match="horizon must be a positive integer"):
+        PlannerConfig(horizon=0)
+    with pytest.raises(ValueError, match="samples must be a positive integer"):
+        PlannerConfig(samples=-4)
+    with pytest.raises(ValueError, match="not finite"):
+        PushCost(SCENARIO, (float("nan"), 0.0, 0.0))
+    with pytest.raises(ValueError, match=r"off the table \(x in \[-0.3, 0.3\]"):
+        PushCost(SCENARIO, (0.5, 0.0, 0.0))
