@@ -7,8 +7,8 @@ positions over the horizon. Backends:
 - ``LearnedDynamics``: an SE3-Net or flow-net checkpoint rolled forward, each predicted cloud
   fed back as the next input (as the paper does for multi-step prediction), the pusher
   position integrated from the commands into the control vector; the object's pose at each
-  step is a rigid fit (weighted Kabsch) of its predicted points to its current points,
-  composed with its current pose. Differentiable end to end with respect to the actions.
+  step is a least-squares rigid fit (Kabsch, in the table plane) of its predicted points
+  to its current points, composed with its current pose. Differentiable end to end with respect to the actions.
 - ``OracleDynamics``: the MuJoCo world itself, copied and simulated for each candidate: the
   upper bound any learned model is measured against.
 - ``NoMotionDynamics``: nothing but the pusher moves: the lower bound.
@@ -23,7 +23,6 @@ import numpy as np
 import torch
 
 from scenarios import Scenario
-from se3net.se3 import rigid_fit
 from sim.mjcf import ObjectSpec
 from sim.world import FIRST_OBJECT_PART, Observation, PushWorld
 
@@ -64,6 +63,27 @@ def plan_state(obs: Observation, world: PushWorld, object_index: int = 0) -> Pla
         world=world,
         object_index=object_index,
     )
+
+
+def planar_fit(
+    src: torch.Tensor, dst: torch.Tensor, centre: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Kabsch in the table plane: the rotation (yaw) and where ``centre`` goes
+    under the rigid planar motion that best takes ``src`` (N,2) to each ``dst`` (K,N,2).
+
+    Closed form (``atan2`` of the summed cross and dot products of the centred points), so
+    its gradients stay finite where an SVD's would not (nearly symmetric point sets, no
+    motion); objects slide on the table, so their motion is planar.
+    """
+    mu_s, mu_d = src.mean(0), dst.mean(1)  # (2,), (K,2)
+    s, d = src - mu_s, dst - mu_d[:, None]
+    cross = (s[:, 0] * d[..., 1] - s[:, 1] * d[..., 0]).sum(-1)
+    dot = (s * d).sum((-1, -2))
+    yaw = torch.atan2(cross, dot)
+    c, sn = torch.cos(yaw), torch.sin(yaw)
+    r = centre - mu_s
+    xy = torch.stack([c * r[0] - sn * r[1], sn * r[0] + c * r[1]], -1) + mu_d
+    return yaw, xy
 
 
 @dataclass(frozen=True)
@@ -176,7 +196,6 @@ class LearnedDynamics:
         sel = (state.object_mask & state.valid).flatten().nonzero()[:, 0].to(self.device)
         src = self._world(state.points.to(self.device).flatten(1)[:, sel].T)  # (N,3)
         pose0 = state.object_pose.to(self.device)
-        centre0 = torch.cat([pose0[:2], src[:, 2].mean()[None]])
         prev_xy = state.pusher_xy.to(self.device).expand(K, 2)
         poses, out_clouds = [], []
         for h in range(H):
@@ -187,12 +206,8 @@ class LearnedDynamics:
                 out_clouds.append(x)
             if len(sel) >= 3:
                 dst = self._world(x.flatten(2)[:, :, sel].transpose(1, 2))  # (K,N,3)
-                T = rigid_fit(
-                    src.expand(K, -1, -1), dst, torch.ones(K, len(sel), device=self.device)
-                )
-                xy = (T[:, :, :3] @ centre0 + T[:, :, 3])[:, :2]
-                yaw = pose0[2] + torch.atan2(T[:, 1, 0], T[:, 0, 0])
-                poses.append(torch.cat([xy, yaw[:, None]], 1))
+                yaw, xy = planar_fit(src[:, :2], dst[..., :2], pose0[:2])
+                poses.append(torch.cat([xy, (pose0[2] + yaw)[:, None]], 1))
             else:  # the object is out of sight: nothing to predict from
                 poses.append(pose0.expand(K, 3) + 0.0 * x.sum())
         return Rollout(

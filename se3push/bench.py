@@ -115,16 +115,66 @@ def bench_model(*, repeats: int) -> dict[str, float]:
     return out
 
 
+def bench_planner(*, repeats: int, flow_model: str | None = None) -> dict:
+    """Median replan time of each optimiser with each backend at the default settings, on a
+    single_box state with the pusher near the box, and the SE3-Net rollout's candidate-steps/s
+    (K = samples, H = horizon of the default config)."""
+    import torch
+
+    from planner import PLANNERS, PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
+    from scenarios import load_scenario
+    from sim import PushWorld
+
+    scenario = load_scenario("single_box")
+    world = PushWorld(scenario)
+    obs = world.reset(3)
+    for _ in range(4):  # bring the pusher near the box
+        d = obs.object_poses[0, :2] - obs.pusher_xy_m
+        obs = world.step(0.12 * d / np.linalg.norm(d))
+    state = plan_state(obs, world)
+    goal = torch.tensor([*(obs.object_poses[0, :2] + [0.1, 0.05]), 0.5])
+    cfg = PlannerConfig()
+    backends = {"se3net": None, "oracle": None, "no-motion": None}
+    if flow_model:
+        backends["flow"] = flow_model
+    times: dict[str, float | None] = {}
+    for backend, model in backends.items():
+        dyn = make_dynamics("flow" if backend == "flow" else backend, scenario, model=model)
+        for name in PLANNERS:
+            key = f"{name}/{backend}"
+            if name in ("grad", "sqp") and not dyn.differentiable:
+                times[key] = None  # not applicable: the simulator has no gradients
+                continue
+            planner = make_planner(name, dyn, PushCost(scenario, goal), scenario, cfg)
+            n = max(3, repeats // 4) if backend == "oracle" or name in ("grad", "sqp") else repeats
+            times[key] = 1e3 * median_seconds(lambda p=planner: p.plan(state), repeats=n, warmup=1)
+    dyn = make_dynamics("se3net", scenario)
+    U = torch.zeros(cfg.samples, cfg.horizon, 2)
+
+    def rollout() -> None:
+        with torch.inference_mode():
+            dyn.rollout(state, U)
+
+    steps_per_s = cfg.samples * cfg.horizon / median_seconds(rollout, repeats=repeats)
+    return {
+        "replan_ms_median": times,
+        "default": "cem/se3net",
+        "se3net_rollout_candidate_steps_per_s": steps_per_s,
+        "settings": {"samples": cfg.samples, "horizon": cfg.horizon, "iterations": cfg.iterations},
+    }
+
+
 BENCHES: dict[str, Callable[..., dict[str, float]]] = {
     "world": bench_world,
     "data": bench_data,
     "model": bench_model,
+    "planner": bench_planner,
 }
 
 
-def run_bench(what: str, *, repeats: int, json_path: str | None) -> dict:
+def run_bench(what: str, *, repeats: int, json_path: str | None, **options: object) -> dict:
     """Run one benchmark, print its table and optionally write its figures as JSON."""
-    figures = BENCHES[what](repeats=repeats)
+    figures = BENCHES[what](repeats=repeats, **options)
     flat = {
         f"{name}[{key}]" if isinstance(value, dict) else name: v
         for name, value in figures.items()
@@ -133,7 +183,12 @@ def run_bench(what: str, *, repeats: int, json_path: str | None) -> dict:
     width = max(map(len, flat))
     print(f"se3push bench {what} (medians over repeats)")
     for name, value in flat.items():
-        print(f"  {name:<{width}}  {value:12.1f}")
+        shown = (
+            f"{value:12.1f}"
+            if isinstance(value, float)
+            else f"{'n/a' if value is None else value:>12}"
+        )
+        print(f"  {name:<{width}}  {shown}")
     if json_path:
         Path(json_path).write_text(json.dumps(figures, indent=2) + "\n")
     return figures

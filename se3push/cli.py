@@ -106,7 +106,8 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from se3push.bench import run_bench
 
-    run_bench(args.what, repeats=args.repeats, json_path=args.json)
+    options = {"flow_model": args.flow_model} if args.what == "planner" else {}
+    run_bench(args.what, repeats=args.repeats, json_path=args.json, **options)
     return 0
 
 
@@ -161,9 +162,10 @@ def _parser() -> argparse.ArgumentParser:
     s.set_defaults(run=_cmd_eval)
 
     s = sub.add_parser("bench", help="time the hot paths (medians over repeats)")
-    s.add_argument("what", choices=["world", "data", "model"], help="which benchmark")
+    s.add_argument("what", choices=["world", "data", "model", "planner"], help="which benchmark")
     s.add_argument("--repeats", type=int, default=20, help="timed repeats per figure")
     s.add_argument("--json", default=None, metavar="PATH", help="also write the figures as JSON")
+    s.add_argument("--flow-model", default=None, help="planner: also time a flow-net checkpoint")
     s.set_defaults(run=_cmd_bench)
     return p
 

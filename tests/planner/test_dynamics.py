@@ -3,7 +3,7 @@ import pytest
 import torch
 
 from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
-from planner.dynamics import LearnedDynamics, NoMotionDynamics
+from planner.dynamics import LearnedDynamics, NoMotionDynamics, planar_fit
 from se3net.checkpoint import CheckpointError
 from se3net.model import ModelConfig, build_model
 from sim import PushWorld
@@ -97,3 +97,15 @@ def test_backend_errors(tiny):
         make_planner(
             "grad", make_dynamics("oracle", tiny), PushCost(tiny, (0.0, 0.0, 0.0)), tiny
         ).plan(state)
+
+
+def test_planar_fit_recovers_a_known_planar_motion():
+    g = torch.Generator().manual_seed(0)
+    src = torch.randn(20, 2, generator=g)
+    th, t = 0.3, torch.tensor([0.1, -0.2])
+    R = torch.tensor([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]], dtype=torch.float32)
+    dst = torch.stack([src @ R.T + t, src])  # moved, and not moved
+    centre = torch.tensor([0.5, 0.5])
+    yaw, xy = planar_fit(src, dst, centre)
+    torch.testing.assert_close(yaw, torch.tensor([th, 0.0]), atol=1e-5, rtol=0)
+    torch.testing.assert_close(xy, torch.stack([R @ centre + t, centre]), atol=1e-5, rtol=0)
