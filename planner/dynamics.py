@@ -8,7 +8,8 @@ positions over the horizon. Backends:
   fed back as the next input (as the paper does for multi-step prediction), the pusher
   position integrated from the commands into the control vector; the object's pose at each
   step is a least-squares rigid fit (Kabsch, in the table plane) of its predicted points
-  to its current points, composed with its current pose. Differentiable end to end with respect to the actions.
+  to its current points, composed with its current pose. Differentiable end to end with
+  respect to the actions.
 - ``OracleDynamics``: the MuJoCo world itself, copied and simulated for each candidate: the
   upper bound any learned model is measured against.
 - ``NoMotionDynamics``: nothing but the pusher moves: the lower bound.
