@@ -88,7 +88,10 @@ class SQPPlanner(Planner):
         radius = c.trust_radius
         for _ in range(c.iterations):
             r0 = self._residuals(state, U).detach()
-            J = torch.autograd.functional.jacobian(lambda x: self._residuals(state, x), U)
+            # forward mode, vectorised: one batched pass for the few (H x 2) action inputs
+            J = torch.autograd.functional.jacobian(
+                lambda x: self._residuals(state, x), U, vectorize=True, strategy="forward-mode"
+            ).detach()
             prob, Jp, rp, lo, hi, d = self._problem(*J.shape)
             u = U.double().numpy()
             Jp.value, rp.value = J.double().numpy(), r0.double().numpy()
