@@ -92,11 +92,14 @@ class SQPPlanner(Planner):
             J = torch.autograd.functional.jacobian(
                 lambda x: self._residuals(state, x), U, vectorize=True, strategy="forward-mode"
             ).detach()
+            if not (torch.isfinite(J).all() and torch.isfinite(r0).all()):
+                radius *= 0.5  # a degenerate linearisation: try a smaller step
+                continue
             prob, Jp, rp, lo, hi, d = self._problem(*J.shape)
             u = U.double().numpy()
             Jp.value, rp.value = J.double().numpy(), r0.double().numpy()
-            lo.value = np.maximum(-self.bound - u, -radius)
             hi.value = np.minimum(self.bound - u, radius)
+            lo.value = np.minimum(np.maximum(-self.bound - u, -radius), hi.value)
             prob.solve(solver=cp.OSQP, warm_start=True, eps_abs=1e-7, eps_rel=1e-7)
             if d.value is None or not np.all(np.isfinite(d.value)):
                 radius *= 0.5
