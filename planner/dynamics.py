@@ -190,6 +190,7 @@ class LearnedDynamics:
 
     def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
         K, H, _ = actions.shape
+        caller = actions.device  # the network runs on self.device; results go back to the caller
         actions = actions.to(self.device)
         pusher = integrate_pusher(state, actions, self.dt)
         x = state.points.to(self.device).expand(K, -1, -1, -1)
@@ -212,7 +213,9 @@ class LearnedDynamics:
             else:  # the object is out of sight: nothing to predict from
                 poses.append(pose0.expand(K, 3) + 0.0 * x.sum())
         return Rollout(
-            torch.stack(poses, 1), pusher, torch.stack(out_clouds, 1) if clouds else None
+            torch.stack(poses, 1).to(caller),
+            pusher.to(caller),
+            torch.stack(out_clouds, 1).to(caller) if clouds else None,
         )
 
 

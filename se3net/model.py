@@ -269,9 +269,8 @@ class FlowNet(nn.Module):
         self.cfg = cfg
         self.norm = _Normaliser(cfg.control_dim)
         self.backbone = _Backbone(cfg, 3)
-        with torch.no_grad():  # starts near no motion, with gradients flowing from the start
-            self.backbone.head.weight.mul_(0.01)
-            self.backbone.head.bias.zero_()
+        nn.init.zeros_(self.backbone.head.weight)  # starts predicting no motion
+        nn.init.zeros_(self.backbone.head.bias)
 
     def forward(
         self, points: torch.Tensor, u: torch.Tensor, valid: torch.Tensor, **_: object

@@ -115,7 +115,7 @@ def bench_model(*, repeats: int) -> dict[str, float]:
     return out
 
 
-def bench_planner(*, repeats: int, flow_model: str | None = None) -> dict:
+def bench_planner(*, repeats: int, flow_model: str | None = None, device: str = "cpu") -> dict:
     """Median replan time of each optimiser with each backend at the default settings, on a
     single_box state with the pusher near the box, and the SE3-Net rollout's candidate-steps/s
     (K = samples, H = horizon of the default config)."""
@@ -139,7 +139,8 @@ def bench_planner(*, repeats: int, flow_model: str | None = None) -> dict:
         backends["flow"] = flow_model
     times: dict[str, float | None] = {}
     for backend, model in backends.items():
-        dyn = make_dynamics("flow" if backend == "flow" else backend, scenario, model=model)
+        kind = "flow" if backend == "flow" else backend
+        dyn = make_dynamics(kind, scenario, model=model, device=device)
         for name in PLANNERS:
             key = f"{name}/{backend}"
             if name in ("grad", "sqp") and not dyn.differentiable:
@@ -148,7 +149,7 @@ def bench_planner(*, repeats: int, flow_model: str | None = None) -> dict:
             planner = make_planner(name, dyn, PushCost(scenario, goal), scenario, cfg)
             n = max(3, repeats // 4) if backend == "oracle" or name in ("grad", "sqp") else repeats
             times[key] = 1e3 * median_seconds(lambda p=planner: p.plan(state), repeats=n, warmup=1)
-    dyn = make_dynamics("se3net", scenario)
+    dyn = make_dynamics("se3net", scenario, device=device)
     U = torch.zeros(cfg.samples, cfg.horizon, 2)
 
     def rollout() -> None:

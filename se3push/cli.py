@@ -106,7 +106,9 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from se3push.bench import run_bench
 
-    options = {"flow_model": args.flow_model} if args.what == "planner" else {}
+    options = (
+        {"flow_model": args.flow_model, "device": args.device} if args.what == "planner" else {}
+    )
     run_bench(args.what, repeats=args.repeats, json_path=args.json, **options)
     return 0
 
@@ -166,6 +168,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--repeats", type=int, default=20, help="timed repeats per figure")
     s.add_argument("--json", default=None, metavar="PATH", help="also write the figures as JSON")
     s.add_argument("--flow-model", default=None, help="planner: also time a flow-net checkpoint")
+    s.add_argument("--device", default="cpu", help="planner: device of the learned backends")
     s.set_defaults(run=_cmd_bench)
     return p
 

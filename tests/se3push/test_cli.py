@@ -165,3 +165,16 @@ def test_train_and_eval_bad_input_is_exit_code_2(tiny_data, tmp_path, capsys):
     ]
     assert main(args) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_bench_planner_writes_every_pair(tmp_path):
+    path = tmp_path / "bench.json"
+    assert main(["bench", "planner", "--repeats", "1", "--json", str(path)]) == 0
+    figures = json.loads(path.read_text())
+    assert figures["default"] == "cem/se3net"
+    times = figures["replan_ms_median"]
+    for planner in ("cem", "mppi", "grad", "sqp"):
+        for backend in ("se3net", "oracle", "no-motion"):
+            assert f"{planner}/{backend}" in times
+    assert times["grad/oracle"] is None and times["cem/oracle"] > times["cem/no-motion"] > 0
+    assert figures["se3net_rollout_candidate_steps_per_s"] > 0
