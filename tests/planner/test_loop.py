@@ -1,0 +1,95 @@
+import json
+import math
+
+import numpy as np
+import pytest
+
+from planner.loop import PushConfig, pose_errors, run_push
+from scenarios import load_scenario
+from se3push.cli import plan_push_main
+from sim import PushWorld
+
+
+def _nearby_goal(dx=0.04):
+    obs = PushWorld(load_scenario("tiny")).reset(0)
+    x, y, yaw = obs.object_poses[0]
+    return float(x + dx), float(y), float(yaw)
+
+
+def test_closed_loop_with_the_oracle_reaches_a_nearby_goal():
+    steps = []
+    result = run_push(
+        PushConfig(goal=_nearby_goal(), scenario="tiny", model="oracle", max_steps=20),
+        on_step=steps.append,
+    )
+    assert result.success_tight and result.reason == "reached"
+    assert result.final_pos_err_m <= 0.02 and len(steps) == result.steps
+    assert steps[-1].pos_err_m < steps[0].pos_err_m
+    assert len(steps[0].predicted_poses) == 4
+
+
+def test_pose_errors_respect_symmetry():
+    goal = np.array([0.0, 0.0, 0.0])
+    assert pose_errors(np.array([0.03, 0.04, math.pi]), goal, math.pi) == pytest.approx((0.05, 0.0))
+    assert pose_errors(np.array([0.0, 0.0, math.radians(100)]), goal, math.pi / 2)[
+        1
+    ] == pytest.approx(10.0)
+    assert pose_errors(np.array([0.0, 0.0, 2.0]), goal, None)[1] == 0.0
+
+
+def test_plan_push_json_and_exit_codes(capsys):
+    x, y, yaw = _nearby_goal()
+    args = [
+        "--goal",
+        str(x),
+        str(y),
+        str(math.degrees(yaw)),
+        "--scenario",
+        "tiny",
+        "--model",
+        "oracle",
+        "--max-steps",
+        "20",
+    ]
+    assert plan_push_main([*args, "--json"]) == 0
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    for key in (
+        "seed",
+        "success_tight",
+        "success_loose",
+        "final_pos_err_m",
+        "final_yaw_err_deg",
+        "steps",
+        "replan_ms_median",
+    ):
+        assert key in line
+    assert line["success_tight"] is True
+    # a step budget too small to get there: failure, exit code 1
+    assert plan_push_main([*args[:-1], "1"]) == 1
+    assert "FAILURE" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--goal", "0.5", "0.0", "0"], "outside the reachable region of scenario tiny: x in"),
+        (["--goal", "nan", "0.0", "0"], "three finite numbers"),
+        (["--goal", "0.05", "0.0", "0", "--object", "2"], "object 2 does not exist"),
+        (["--goal", "0.05", "0.0", "0", "--model", "missing.pt"], "does not exist"),
+        (["--goal", "0.05", "0.0", "0", "--model", "default"], "does not fit scenario 'tiny'"),
+        (
+            ["--goal", "0.05", "0.0", "0", "--model", "oracle", "--planner", "ilqr"],
+            "unknown planner 'ilqr'",
+        ),
+    ],
+)
+def test_plan_push_bad_input_is_exit_code_2(args, message, capsys):
+    assert plan_push_main([*args, "--scenario", "tiny"]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_plan_push_wrong_number_of_goal_values_is_exit_code_2(capsys):
+    with pytest.raises(SystemExit) as exc:
+        plan_push_main(["--goal", "0.1", "0.0"])
+    assert exc.value.code == 2
+    assert "--goal" in capsys.readouterr().err
