@@ -103,6 +103,28 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_trials(args: argparse.Namespace) -> int:
+    from planner.trials import TrialsConfig, run_trials
+
+    cfg = TrialsConfig(scenario=args.scenario, n=args.n, model=args.model, planner=args.planner,
+                       seed=args.seed, max_steps=args.max_steps)  # fmt: skip
+    s = run_trials(cfg, args.out, workers=args.workers)
+    lo, hi = s["success_tight_ci95"]
+    lo2, hi2 = s["success_loose_ci95"]
+    print(
+        f"{args.model} / {args.planner} on {args.scenario}, "
+        f"{s['trials']} trials (seed {args.seed}):\n"
+        f"  success (2 cm, 10 deg)  {s['success_tight']:.0%}  [95 % CI {lo:.0%}-{hi:.0%}]\n"
+        f"  success (5 cm, 20 deg)  {s['success_loose']:.0%}  [95 % CI {lo2:.0%}-{hi2:.0%}]\n"
+        f"  median final error      {s['median_final_pos_err_m'] * 100:.1f} cm, "
+        f"{s['median_final_yaw_err_deg']:.1f} deg\n"
+        f"  median steps            {s['median_steps']:.0f}\n"
+        f"  median replan           {s['median_replan_ms_median']:.0f} ms\n"
+        f"wrote {args.out}/trials.jsonl, summary.json, paths.png"
+    )
+    return 0
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     from se3push.bench import run_bench
 
@@ -162,6 +184,19 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="folder for table.md, eval.json and PNGs")
     s.add_argument("--max-examples", type=int, default=2000, help="test examples to use")
     s.set_defaults(run=_cmd_eval)
+
+    s = sub.add_parser("trials", help="closed-loop trials with success rates")
+    s.add_argument("--scenario", default="single_box", help="scenario name or TOML path")
+    s.add_argument("--n", type=int, default=50, help="number of trials")
+    s.add_argument(
+        "--model", default="default", help="default, a checkpoint path, oracle or no-motion"
+    )
+    s.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
+    s.add_argument("--seed", type=int, default=0, help="seed of the trial set")
+    s.add_argument("--max-steps", type=int, default=60, help="control steps per trial")
+    s.add_argument("--out", required=True, help="folder for trials.jsonl, summary.json, paths.png")
+    s.add_argument("--workers", type=int, default=1, help="processes")
+    s.set_defaults(run=_cmd_trials)
 
     s = sub.add_parser("bench", help="time the hot paths (medians over repeats)")
     s.add_argument("what", choices=["world", "data", "model", "planner"], help="which benchmark")

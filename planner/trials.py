@@ -1,0 +1,202 @@
+"""Closed-loop trials: a seeded set of starts and goals, run with any model and planner.
+
+Trial i depends only on (scenario, seed, i): the world's reset seed and a goal drawn
+uniformly over the scenario's goal region, at least ``min_distance_m`` or ``min_yaw_deg`` away
+from the object's start and at most ``max_distance_m`` (not drawn from demonstrations). So
+the same seed gives the same trial set for every model and planner, and results compare pair
+by pair. Finished trials are appended to ``trials.jsonl``; a run started again skips them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planner.loop import PushConfig, run_push
+from scenarios import Scenario, load_scenario
+from sim import PushWorld
+from sim.shards import atomic_write_json
+
+
+@dataclass(frozen=True)
+class TrialsConfig:
+    """A set of closed-loop trials."""
+
+    scenario: str
+    """scenario name or TOML path"""
+    n: int
+    """number of trials"""
+    model: str = "default"
+    """dynamics: default, a checkpoint path, oracle or no-motion"""
+    planner: str = "cem"
+    """optimiser"""
+    seed: int = 0
+    """seed of the trial set (and of each trial's planner)"""
+    max_steps: int = 60
+    """control steps per trial"""
+
+    def __post_init__(self) -> None:
+        if self.n < 1 or self.max_steps < 1:
+            raise ValueError(
+                f"--n and --max-steps must be positive, got {self.n} and {self.max_steps}"
+            )
+
+
+def draw_trial(scenario: Scenario, seed: int, i: int) -> dict[str, Any]:
+    """Trial i of the set: the world's reset seed, the object's start pose and the goal."""
+    rng = np.random.default_rng([seed, i, 7])
+    reset_seed = int(rng.integers(1 << 31))
+    start = PushWorld(scenario).reset(reset_seed).object_poses[0]
+    g = scenario.goals
+    x0, x1, y0, y1 = g.region_m
+    for _ in range(10_000):
+        goal = np.array([rng.uniform(x0, x1), rng.uniform(y0, y1), rng.uniform(-math.pi, math.pi)])
+        dist = float(np.hypot(*(goal[:2] - start[:2])))
+        turn = abs(math.degrees((goal[2] - start[2] + math.pi) % (2 * math.pi) - math.pi))
+        if dist <= g.max_distance_m and (dist >= g.min_distance_m or turn >= g.min_yaw_deg):
+            return {
+                "trial": i,
+                "reset_seed": reset_seed,
+                "start": start.tolist(),
+                "goal": goal.tolist(),
+            }
+    raise ValueError(
+        f"scenario {scenario.name}: no goal satisfies goals.* from start {start.tolist()}"
+    )
+
+
+def run_trial(cfg: TrialsConfig, i: int) -> dict[str, Any]:
+    """Run trial i; returns its JSONL record."""
+    trial = draw_trial(load_scenario(cfg.scenario), cfg.seed, i)
+    push = PushConfig(
+        goal=tuple(trial["goal"]),
+        scenario=cfg.scenario,
+        model=cfg.model,
+        planner=cfg.planner,
+        seed=trial["reset_seed"],
+        max_steps=cfg.max_steps,
+    )
+    result = run_push(push)
+    path = [trial["start"][:2]] + [r.object_pose[:2] for r in result.records]
+    return {**trial, **result.summary(), "path": path}
+
+
+def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95 % Wilson score interval of a success rate k/n."""
+    if n == 0:
+        return 0.0, 1.0
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Success rates (with 95 % intervals) and medians of a set of trial records."""
+    n = len(records)
+    out: dict[str, Any] = {"trials": n}
+    for tol in ("tight", "loose"):
+        k = sum(r[f"success_{tol}"] for r in records)
+        out[f"success_{tol}"] = k / max(n, 1)
+        out[f"success_{tol}_ci95"] = list(wilson(k, n))
+    for key in ("final_pos_err_m", "final_yaw_err_deg", "steps", "replan_ms_median"):
+        out[f"median_{key}"] = float(np.median([r[key] for r in records])) if records else None
+    return out
+
+
+def run_trials(
+    cfg: TrialsConfig, out: str | Path, *, workers: int = 1, progress: bool = True
+) -> dict[str, Any]:
+    """Run (or finish) a trial set into ``out``; returns the summary.
+
+    Raises:
+        ValueError: ``out`` holds trials of another configuration, or bad settings.
+    """
+    from tqdm import tqdm
+
+    if workers < 1:
+        raise ValueError(f"--workers must be at least 1, got {workers}")
+    load_scenario(cfg.scenario)  # fail early on an unknown scenario
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    meta_path, log = out / "config.json", out / "trials.jsonl"
+    if meta_path.exists():
+        old = json.loads(meta_path.read_text())
+        if old != asdict(cfg):
+            diffs = [
+                f"{k}: folder has {old.get(k)!r}, this run asks for {v!r}"
+                for k, v in asdict(cfg).items()
+                if old.get(k) != v
+            ]
+            raise ValueError(
+                f"{out} holds other trials ({'; '.join(diffs)}); use a new --out folder"
+            )
+    else:
+        atomic_write_json(meta_path, asdict(cfg))
+    records = {}
+    if log.exists():
+        for line in log.read_text().splitlines():
+            if line.strip():
+                try:
+                    rec = json.loads(line)
+                except json.JSONDecodeError:
+                    continue  # a line cut by an interruption: that trial runs again
+                records[rec["trial"]] = rec
+        log.write_text("".join(json.dumps(records[i]) + "\n" for i in sorted(records)))
+    todo = [i for i in range(cfg.n) if i not in records]
+    bar = tqdm(
+        total=cfg.n, initial=cfg.n - len(todo), unit="trial", disable=not progress, desc="trials"
+    )
+
+    def record(rec: dict[str, Any]) -> None:
+        records[rec["trial"]] = rec
+        with open(log, "a") as f:
+            f.write(json.dumps(rec) + "\n")
+        bar.update(1)
+        bar.set_postfix(
+            success=f"{sum(r['success_tight'] for r in records.values())}/{len(records)}"
+        )
+
+    if workers == 1:
+        for i in todo:
+            record(run_trial(cfg, i))
+    else:
+        ctx = multiprocessing.get_context("fork")
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            for fut in as_completed([pool.submit(run_trial, cfg, i) for i in todo]):
+                record(fut.result())
+    bar.close()
+    ordered = [records[i] for i in range(cfg.n)]
+    summary = {"config": asdict(cfg), **summarize(ordered)}
+    atomic_write_json(out / "summary.json", summary)
+    plot_paths(ordered, out / "paths.png", title=f"{cfg.model} / {cfg.planner} on {cfg.scenario}")
+    return summary
+
+
+def plot_paths(records: list[dict[str, Any]], out: Path, *, title: str) -> None:
+    """Object paths (start dot, path line) against their goals (crosses), coloured by success."""
+    from sim.render import _pyplot, save_figure
+
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6, 6))
+    for r in records:
+        path = np.array(r["path"])
+        colour = (
+            "tab:green" if r["success_tight"] else "tab:orange" if r["success_loose"] else "tab:red"
+        )
+        ax.plot(path[:, 0], path[:, 1], color=colour, lw=1)
+        ax.plot(*path[0], "o", color=colour, ms=3)
+        ax.plot(r["goal"][0], r["goal"][1], "x", color=colour, ms=6)
+        ax.plot([path[-1, 0], r["goal"][0]], [path[-1, 1], r["goal"][1]], ":", color=colour, lw=0.8)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"{title}: green tight, orange loose, red failed")
+    save_figure(fig, out)

@@ -1,0 +1,101 @@
+import json
+
+import pytest
+
+import planner.trials as trials_mod
+from planner.trials import TrialsConfig, draw_trial, run_trials, wilson
+from scenarios import load_scenario
+from se3push.cli import main
+
+TIMING = ("replan_ms_median",)
+
+
+def _strip(rec):
+    return {k: v for k, v in rec.items() if k not in TIMING}
+
+
+def test_goals_follow_the_scenario_distribution():
+    s = load_scenario("single_box")
+    g = s.goals
+    for i in range(20):
+        t = draw_trial(s, 0, i)
+        (x, y, _), (sx, sy, _) = t["goal"], t["start"]
+        dist = ((x - sx) ** 2 + (y - sy) ** 2) ** 0.5
+        assert g.region_m[0] <= x <= g.region_m[1] and g.region_m[2] <= y <= g.region_m[3]
+        assert dist <= g.max_distance_m + 1e-9
+    assert draw_trial(s, 0, 3) == draw_trial(s, 0, 3) and draw_trial(s, 0, 3) != draw_trial(s, 1, 3)
+
+
+def test_the_trial_set_is_the_same_for_two_models(tmp_path):
+    keys = ("trial", "reset_seed", "start", "goal")
+    sets = []
+    for model in ("no-motion", "oracle"):
+        run_trials(
+            TrialsConfig("tiny", n=2, model=model, max_steps=1), tmp_path / model, progress=False
+        )
+        lines = (tmp_path / model / "trials.jsonl").read_text().splitlines()
+        sets.append([{k: json.loads(x)[k] for k in keys} for x in lines])
+    assert sets[0] == sets[1]
+
+
+def test_a_resumed_run_gives_the_same_results(tmp_path, monkeypatch):
+    cfg = TrialsConfig("tiny", n=3, model="no-motion", max_steps=4)
+    ref = run_trials(cfg, tmp_path / "ref", progress=False)
+    real = trials_mod.run_trial
+
+    def interrupted(c, i):
+        if i == 1:
+            raise KeyboardInterrupt
+        return real(c, i)
+
+    monkeypatch.setattr(trials_mod, "run_trial", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_trials(cfg, tmp_path / "b", progress=False)
+    monkeypatch.setattr(trials_mod, "run_trial", real)
+    done = []
+    monkeypatch.setattr(trials_mod, "run_trial", lambda c, i: done.append(i) or real(c, i))
+    again = run_trials(cfg, tmp_path / "b", progress=False)
+    assert done == [1, 2]  # trial 0 was not run again
+    a = [
+        _strip(json.loads(x)) for x in (tmp_path / "ref" / "trials.jsonl").read_text().splitlines()
+    ]
+    b = [_strip(json.loads(x)) for x in (tmp_path / "b" / "trials.jsonl").read_text().splitlines()]
+    assert a == b
+    assert again["success_tight"] == ref["success_tight"] and again["trials"] == 3
+    assert (tmp_path / "b" / "paths.png").read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(ValueError, match="holds other trials"):
+        run_trials(
+            TrialsConfig("tiny", n=3, model="oracle", max_steps=4), tmp_path / "b", progress=False
+        )
+
+
+def test_wilson_interval():
+    lo, hi = wilson(19, 20)
+    assert lo == pytest.approx(0.7639, abs=1e-4) and hi == pytest.approx(0.9911, abs=1e-4)
+    assert wilson(0, 10)[0] == 0.0
+
+
+def test_trials_command_and_bad_input(tmp_path, capsys):
+    out = tmp_path / "t"
+    assert (
+        main(
+            [
+                "trials",
+                "--scenario",
+                "tiny",
+                "--n",
+                "1",
+                "--model",
+                "no-motion",
+                "--max-steps",
+                "2",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    assert "success (2 cm, 10 deg)" in capsys.readouterr().out
+    assert json.loads((out / "summary.json").read_text())["trials"] == 1
+    assert main(["trials", "--scenario", "tiny", "--n", "0", "--out", str(tmp_path / "x")]) == 2
+    assert "--n and --max-steps must be positive" in capsys.readouterr().err
