@@ -150,15 +150,14 @@ class OracleDynamics:
         K, H, _ = a.shape
         poses = np.empty((K, H, 3))
         pusher = np.empty((K, H, 2))
-        site = self._clone._pusher_site
         for k in range(K):
             self._clone.restore(start)
             for h in range(H):
-                if self._clone._done:  # the object fell off: it stays where it was last seen
+                if self._clone.ended:  # the object fell off: it stays where it was last seen
                     poses[k, h], pusher[k, h] = poses[k, h - 1], pusher[k, h - 1]
                     continue
                 poses[k, h] = self._clone.advance(a[k, h])[state.object_index]
-                pusher[k, h] = self._clone.data.site_xpos[site, :2]
+                pusher[k, h] = self._clone.pusher_xy()
         return Rollout(torch.from_numpy(poses).to(actions), torch.from_numpy(pusher).to(actions))
 
 

@@ -260,6 +260,12 @@ class PushWorld:
             ActionError: the action is malformed, not finite or out of bounds.
             EpisodeEnded: the episode has already ended.
         """
+        self.advance(action)
+        return self.observe()
+
+    def advance(self, action: np.ndarray) -> np.ndarray:
+        """``step`` without rendering: returns the objects' planar poses (n,3). The fast path
+        for simulating candidate actions (the oracle backend). Raises as ``step``."""
         a = self.check_action(action)
         if self.model is None:
             raise EpisodeEnded("no episode yet: call reset(seed) first")
@@ -267,18 +273,17 @@ class PushWorld:
             raise EpisodeEnded(f"the episode ended ({self._reason}); call reset(seed)")
         self._advance(a, self.n_substeps)
         self._check_end()
-        return self.observe()
-
-    def advance(self, action: np.ndarray) -> np.ndarray:
-        """Like ``step`` but without rendering: returns the objects' planar poses (n,3).
-        The fast path for simulating candidate actions (the oracle backend)."""
-        a = self.check_action(action)
-        if self._done:
-            raise EpisodeEnded(f"the episode ended ({self._reason}); call reset(seed)")
-        self._advance(a, self.n_substeps)
-        self._check_end()
         T = self.part_poses()[FIRST_OBJECT_PART:]
         return np.column_stack([T[:, 0, 3], T[:, 1, 3], np.arctan2(T[:, 1, 0], T[:, 0, 0])])
+
+    @property
+    def ended(self) -> bool:
+        """The episode has ended (object off the table, or unstable)."""
+        return self._done
+
+    def pusher_xy(self) -> np.ndarray:
+        """(2,) the pusher tip's position now, world frame."""
+        return self.data.site_xpos[self._pusher_site, :2].copy()
 
     def snapshot(self) -> dict[str, np.ndarray | float | bool | str]:
         """The dynamic state (physics, servo targets, episode status), for ``restore``."""
@@ -370,7 +375,7 @@ class PushWorld:
             points_part=points_part,
             T_world_part=T_world_part,
             object_poses=poses,
-            pusher_xy_m=d.site_xpos[self._pusher_site, :2].copy(),
+            pusher_xy_m=self.pusher_xy(),
             joint_pos_rad=d.qpos[self._arm_qpos].copy(),
             joint_vel_rad_s=d.qvel[self._arm_dof].copy(),
             time_s=float(d.time),
