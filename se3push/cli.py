@@ -238,14 +238,12 @@ def _plan_push_parser() -> argparse.ArgumentParser:
     return p
 
 
-def plan_push_main(argv: Sequence[str] | None = None) -> int:
-    """``plan-push`` entry point: 0 if the object reached the goal, 1 if not, 2 on bad input."""
+def _cmd_plan_push(args: argparse.Namespace) -> int:
     import json
     import math
 
     from planner.loop import PushConfig, run_push
 
-    args = _plan_push_parser().parse_args(argv)
     x, y, yaw_deg = args.goal
     cfg = PushConfig(
         goal=(x, y, math.radians(yaw_deg)), scenario=args.scenario, object_index=args.object,
@@ -261,11 +259,7 @@ def plan_push_main(argv: Sequence[str] | None = None) -> int:
                 flush=True,
             )
 
-    try:
-        result = run_push(cfg, on_step=show)
-    except USER_ERRORS as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+    result = run_push(cfg, on_step=show)
     if args.json:
         print(json.dumps(result.summary()))
     else:
@@ -277,6 +271,11 @@ def plan_push_main(argv: Sequence[str] | None = None) -> int:
             f"loose success {result.success_loose}"
         )
     return 0 if result.success_tight else 1
+
+
+def plan_push_main(argv: Sequence[str] | None = None) -> int:
+    """``plan-push`` entry point: 0 if the object reached the goal, 1 if not, 2 on bad input."""
+    return _run(_cmd_plan_push, _plan_push_parser().parse_args(argv))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
