@@ -42,7 +42,7 @@ def test_bench_world_writes_the_named_figures(tmp_path):
     assert figures["camera_fps_64x64"] > figures["camera_fps_240x320"] > 0
 
 
-def test_wheel_carries_the_scenario_files(tmp_path):
+def test_wheel_carries_the_scenario_files_and_the_default_model(tmp_path):
     pytest.importorskip("setuptools")
     subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
@@ -53,6 +53,7 @@ def test_wheel_carries_the_scenario_files(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     for stem in ("single_box", "multi_object", "tiny"):
         assert f"scenarios/{stem}.toml" in names
+    assert "se3net/weights/default.pt" in names  # the shipped model
 
 
 def test_data_generates_and_inspects(tmp_path, capsys):
