@@ -13,6 +13,7 @@ import torch
 
 from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
 from planner.cost import yaw_period
+from planner.viz import MeshcatVisualiser, NullVisualiser
 from scenarios import Scenario, load_scenario
 from sim import PushWorld
 
@@ -102,7 +103,12 @@ def check_reachable(scenario: Scenario, goal: tuple[float, float, float]) -> Non
         )
 
 
-def run_push(cfg: PushConfig, *, on_step: Callable[[StepRecord], None] | None = None) -> PushResult:
+def run_push(
+    cfg: PushConfig,
+    *,
+    on_step: Callable[[StepRecord], None] | None = None,
+    viz: NullVisualiser | MeshcatVisualiser | None = None,
+) -> PushResult:
     """Reset the world with ``cfg.seed`` and push object ``cfg.object_index`` to the goal.
 
     Raises:
@@ -133,6 +139,19 @@ def run_push(cfg: PushConfig, *, on_step: Callable[[StepRecord], None] | None = 
     period = yaw_period(world.objects[cfg.object_index])
     records: list[StepRecord] = []
     reason = "budget"
+    viz = viz or NullVisualiser()
+    viz.start(world, obs, goal, object_index=cfg.object_index, horizon=planner.cfg.horizon,
+              model=getattr(dynamics, "model", None))  # fmt: skip
+    try:
+        obs, reason = _loop(cfg, world, obs, planner, goal, period, records, on_step, viz)
+    finally:
+        viz.finish()
+    return _result(cfg, obs, goal, period, records, reason)
+
+
+def _loop(cfg, world, obs, planner, goal, period, records, on_step, viz):
+    """Observe, plan, apply, until the goal is reached, the episode ends or the budget is spent."""
+    reason = "budget"
     for step in range(cfg.max_steps):
         pos_err, yaw_err = pose_errors(obs.object_poses[cfg.object_index], goal, period)
         if pos_err <= TIGHT[0] and yaw_err <= TIGHT[1]:
@@ -140,6 +159,7 @@ def run_push(cfg: PushConfig, *, on_step: Callable[[StepRecord], None] | None = 
             break
         action, info = planner.plan(plan_state(obs, world, cfg.object_index))
         obs = world.step(action)
+        viz.step(obs, info)
         pose = obs.object_poses[cfg.object_index]
         pos_err, yaw_err = pose_errors(pose, goal, period)
         rec = StepRecord(step + 1, action.tolist(), pose.tolist(), pos_err, yaw_err, info.wall_ms,
@@ -150,6 +170,10 @@ def run_push(cfg: PushConfig, *, on_step: Callable[[StepRecord], None] | None = 
         if obs.done:
             reason = obs.reason
             break
+    return obs, reason
+
+
+def _result(cfg, obs, goal, period, records, reason) -> PushResult:
     pos_err, yaw_err = pose_errors(obs.object_poses[cfg.object_index], goal, period)
     if reason == "budget" and pos_err <= TIGHT[0] and yaw_err <= TIGHT[1]:
         reason = "reached"

@@ -218,8 +218,8 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
         loss = point_loss(pred, b["target"][:, 0], b["target_valid"][:, 0], b["points"])
         if not torch.isfinite(loss):
             raise TrainingDiverged(
-                f"loss became {float(loss.detach())} at step {it + 1}; {last} keeps the last good state "
-                f"(iteration {figures.get('iteration', start)}); lower --lr and --resume"
+                f"loss became {float(loss.detach())} at step {it + 1}; {last} keeps the last "
+                f"good state (iteration {figures.get('iteration', start)}); lower --lr and --resume"
             )
         opt.zero_grad(set_to_none=True)
         loss.backward()

@@ -235,6 +235,12 @@ def _plan_push_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-steps", type=int, default=60, help="control steps before giving up")
     p.add_argument("--device", default="cpu", help="device of a learned model")
     p.add_argument("--json", action="store_true", help="print the result line as JSON")
+    p.add_argument(
+        "--viz", action="store_true", help="show the push live in meshcat (prints the URL)"
+    )
+    p.add_argument(
+        "--record", metavar="HTML", help="write the push as a self-contained meshcat HTML animation"
+    )
     return p
 
 
@@ -259,7 +265,14 @@ def _cmd_plan_push(args: argparse.Namespace) -> int:
                 flush=True,
             )
 
-    result = run_push(cfg, on_step=show)
+    viz = None
+    if args.viz or args.record:
+        from planner.viz import MeshcatVisualiser
+
+        viz = MeshcatVisualiser(live=args.viz, record=args.record)
+    result = run_push(cfg, on_step=show, viz=viz)
+    if args.record:
+        print(f"wrote {args.record} ({viz.frames} frames)")
     if args.json:
         print(json.dumps(result.summary()))
     else:

@@ -1,0 +1,189 @@
+"""Visualisers injected into the closed loop: a no-op by default, meshcat when asked for.
+
+``MeshcatVisualiser`` shows the table, the objects, the pusher, the goal as a green ghost, the
+observed cloud (coloured by the model's mask argmax when the model has masks, else by the true
+parts) and, at every step, the chosen plan's predicted object poses over the horizon as orange
+ghosts beside the real motion. Live (``live=True``: meshcat's server on 127.0.0.1, its URL
+printed) and/or recorded (``record=PATH``: a self-contained HTML animation, one frame per step,
+from ``static_html()``). meshcat is imported only here, and only when asked for.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from planner.base import PlanInfo
+from sim.shards import atomic_write_bytes
+from sim.world import Observation, PushWorld
+
+MASK_COLOURS = np.array(
+    [
+        [0.55, 0.55, 0.55],
+        [0.2, 0.4, 0.9],
+        [0.95, 0.8, 0.1],
+        [0.6, 0.2, 0.7],
+        [0.1, 0.7, 0.3],
+        [0.9, 0.2, 0.2],
+        [0.2, 0.8, 0.8],
+        [0.5, 0.4, 0.2],
+    ]  # fmt: skip
+)
+"""colours of mask channels (the model's argmax), in channel order"""
+PART_COLOURS = np.array(
+    [
+        [0.6, 0.6, 0.6],
+        [0.2, 0.4, 0.9],
+        [0.9, 0.5, 0.1],
+        [0.6, 0.2, 0.7],
+        [0.1, 0.6, 0.3],
+        [0.9, 0.2, 0.2],
+        [0.2, 0.8, 0.8],
+        [0.5, 0.4, 0.2],
+    ]  # fmt: skip
+)
+
+
+class NullVisualiser:
+    """Does nothing: the loop never checks whether visualisation is on."""
+
+    frames = 0
+
+    def start(self, world: PushWorld, obs: Observation, goal: np.ndarray, **_: Any) -> None:
+        pass
+
+    def step(self, obs: Observation, info: PlanInfo) -> None:
+        pass
+
+    def finish(self) -> None:
+        pass
+
+
+def _pose_matrix(x: float, y: float, yaw: float, z: float) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    T = np.eye(4)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[:3, 3] = [x, y, z]
+    return T
+
+
+class MeshcatVisualiser:
+    """Meshcat scene of one closed-loop push.
+
+    Args:
+        live: keep the server's page updated while the loop runs (prints the URL).
+        record: write the animation as a self-contained HTML file there at the end.
+    """
+
+    def __init__(self, *, live: bool = False, record: str | Path | None = None):
+        self.live, self.record = live, Path(record) if record else None
+        self.frames = 0
+        self.vis: Any = None
+
+    def start(self, world: PushWorld, obs: Observation, goal: np.ndarray, *, object_index: int = 0,
+              horizon: int = 4, model: torch.nn.Module | None = None) -> None:  # fmt: skip
+        import meshcat
+        import meshcat.animation
+        import meshcat.geometry as g
+
+        self.vis = meshcat.Visualizer()  # starts meshcat's server on 127.0.0.1 and prints its URL
+        self.anim = meshcat.animation.Animation(
+            default_framerate=1 / world.scenario.action.dt_control_s
+        )
+        self.world, self.index, self.horizon = world, object_index, horizon
+        t = world.scenario.table
+        self.vis["table"].set_object(
+            g.Box([*t.size_m, t.thickness_m]), g.MeshLambertMaterial(color=0xC8B89A)
+        )
+        self.vis["table"].set_transform(_pose_matrix(0, 0, 0, -t.thickness_m / 2))
+        a = world.scenario.arm
+        pusher = g.Cylinder(a.pusher_length_m, a.pusher_radius_m)
+        self.vis["pusher"].set_object(pusher, g.MeshLambertMaterial(color=0x3366DD))
+        for i, spec in enumerate(world.objects):
+            self._object(f"objects/{i}", spec, g.MeshLambertMaterial(color=0xDD7733))
+        spec = world.objects[object_index]
+        self._object(
+            "goal", spec, g.MeshLambertMaterial(color=0x33CC55, opacity=0.35, transparent=True)
+        )
+        self.vis["goal"].set_transform(self._T(goal, spec))
+        for h in range(horizon):
+            ghost = g.MeshLambertMaterial(
+                color=0xFF9900, opacity=0.15 + 0.5 * (h + 1) / horizon, transparent=True
+            )
+            self._object(f"predicted/{h}", spec, ghost)
+        self._cloud(obs, model)
+        self._place(self.vis, obs, None)
+        # a view of the table from the camera's side, without the floor grid
+        self.vis["/Grid"].set_property("visible", False)
+        self.vis["/Cameras/default"].set_transform(np.eye(4))
+        self.vis["/Cameras/default/rotated/<object>"].set_property("position", [0.75, 0.65, 0.25])
+
+    def _object(self, path: str, spec, material) -> None:
+        import meshcat.geometry as g
+
+        sx, sy, sz = spec.size_m
+        geom = g.Box([sx, sy, sz]) if spec.shape == "box" else g.Cylinder(sz, sx / 2)
+        self.vis[path]["shape"].set_object(geom, material)
+        if spec.shape != "box":  # meshcat's cylinders stand along y
+            self.vis[path]["shape"].set_transform(_pose_matrix(0, 0, 0, 0) @ np.array(
+                [[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1.0]]))  # fmt: skip
+
+    def _T(self, pose: np.ndarray, spec) -> np.ndarray:
+        return _pose_matrix(float(pose[0]), float(pose[1]), float(pose[2]), spec.size_m[2] / 2)
+
+    def _cloud(self, obs: Observation, model: torch.nn.Module | None) -> None:
+        import meshcat.geometry as g
+
+        labels, palette = obs.part.astype(int) + 1, PART_COLOURS
+        if model is not None and hasattr(model, "se3_head"):
+            with torch.no_grad():
+                pts = torch.from_numpy(obs.points_cam).float()[None]
+                u = torch.tensor([[0.0, 0.0, *obs.pusher_xy_m]], dtype=torch.float32)
+                masks = model(pts, u, torch.from_numpy(obs.valid)[None]).masks
+            labels, palette = masks[0].argmax(0).numpy(), MASK_COLOURS
+        T = self.world.camera.T_world_cam
+        p = (T[:3, :3] @ obs.points_cam.reshape(3, -1) + T[:3, 3:])[:, obs.valid.ravel()]
+        colours = palette[labels.ravel()[obs.valid.ravel()] % len(palette)].T
+        self.vis["cloud"].set_object(g.PointCloud(p, colours, size=0.006))
+
+    def _place(self, target: Any, obs: Observation, info: PlanInfo | None) -> None:
+        a = self.world.scenario.arm
+        x, y = obs.pusher_xy_m
+        target["pusher"].set_transform(
+            _pose_matrix(x, y, 0, a.pusher_clearance_m + a.pusher_length_m / 2)
+            @ np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1.0]])
+        )
+        for i, spec in enumerate(self.world.objects):
+            target[f"objects/{i}"].set_transform(self._T(obs.object_poses[i], spec))
+        spec = self.world.objects[self.index]
+        for h in range(self.horizon):
+            pose = (
+                obs.object_poses[self.index]
+                if info is None
+                else info.predicted_poses[min(h, len(info.predicted_poses) - 1)]
+            )
+            target[f"predicted/{h}"].set_transform(self._T(pose, spec))
+
+    def step(self, obs: Observation, info: PlanInfo) -> None:
+        """One frame: the real poses after the step and the plan's predicted poses."""
+        with self.anim.at_frame(self.vis, self.frames) as frame:
+            self._place(frame, obs, info)
+        if self.live:
+            self._place(self.vis, obs, info)
+        self.frames += 1
+
+    def finish(self) -> None:
+        """Attach the animation, write the HTML file if asked, stop the server."""
+        if self.vis is None:
+            return
+        self.vis.set_animation(self.anim, play=False)
+        if self.record is not None:
+            self.record.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_bytes(self.record, self.vis.static_html().encode())
+        if not self.live:
+            self.vis.window.server_proc.kill()
+            self.vis.window.server_proc.wait()
