@@ -11,6 +11,7 @@ from ``static_html()``). meshcat is imported only here, and only when asked for.
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -184,6 +185,7 @@ class MeshcatVisualiser:
         if self.record is not None:
             self.record.parent.mkdir(parents=True, exist_ok=True)
             atomic_write_bytes(self.record, self.vis.static_html().encode())
-        if not self.live:
-            self.vis.window.server_proc.kill()
-            self.vis.window.server_proc.wait()
+        if self.live and sys.stdin.isatty():
+            input(f"the push is shown at {self.vis.url()}; press Enter to close the visualiser ")
+        self.vis.window.server_proc.kill()  # never leave meshcat's server behind
+        self.vis.window.server_proc.wait()
