@@ -49,6 +49,10 @@ PART_COLOURS = np.array(
 )
 
 
+Y_UP_TO_Z_UP = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1.0]])
+"""turns meshcat's cylinders, which stand along y, to stand along z"""
+
+
 class NullVisualiser:
     """Does nothing: the loop never checks whether visualisation is on."""
 
@@ -130,8 +134,7 @@ class MeshcatVisualiser:
         geom = g.Box([sx, sy, sz]) if spec.shape == "box" else g.Cylinder(sz, sx / 2)
         self.vis[path]["shape"].set_object(geom, material)
         if spec.shape != "box":  # meshcat's cylinders stand along y
-            self.vis[path]["shape"].set_transform(_pose_matrix(0, 0, 0, 0) @ np.array(
-                [[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1.0]]))  # fmt: skip
+            self.vis[path]["shape"].set_transform(Y_UP_TO_Z_UP)
 
     def _T(self, pose: np.ndarray, spec) -> np.ndarray:
         return _pose_matrix(float(pose[0]), float(pose[1]), float(pose[2]), spec.size_m[2] / 2)
@@ -155,8 +158,7 @@ class MeshcatVisualiser:
         a = self.world.scenario.arm
         x, y = obs.pusher_xy_m
         target["pusher"].set_transform(
-            _pose_matrix(x, y, 0, a.pusher_clearance_m + a.pusher_length_m / 2)
-            @ np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1.0]])
+            _pose_matrix(x, y, 0, a.pusher_clearance_m + a.pusher_length_m / 2) @ Y_UP_TO_Z_UP
         )
         for i, spec in enumerate(self.world.objects):
             target[f"objects/{i}"].set_transform(self._T(obs.object_poses[i], spec))
