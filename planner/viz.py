@@ -22,7 +22,7 @@ from planner.base import PlanInfo
 from sim.shards import atomic_write_bytes
 from sim.world import Observation, PushWorld
 
-MASK_COLOURS = np.array(
+COLOURS = np.array(
     [
         [0.55, 0.55, 0.55],
         [0.2, 0.4, 0.9],
@@ -34,21 +34,7 @@ MASK_COLOURS = np.array(
         [0.5, 0.4, 0.2],
     ]  # fmt: skip
 )
-"""colours of mask channels (the model's argmax), in channel order"""
-PART_COLOURS = np.array(
-    [
-        [0.6, 0.6, 0.6],
-        [0.2, 0.4, 0.9],
-        [0.9, 0.5, 0.1],
-        [0.6, 0.2, 0.7],
-        [0.1, 0.6, 0.3],
-        [0.9, 0.2, 0.2],
-        [0.2, 0.8, 0.8],
-        [0.5, 0.4, 0.2],
-    ]  # fmt: skip
-)
-
-
+"""cloud colours by label: a part (0 static, 1 pusher, 2+ objects) or a mask channel"""
 Y_UP_TO_Z_UP = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1.0]])
 """turns meshcat's cylinders, which stand along y, to stand along z"""
 
@@ -142,16 +128,16 @@ class MeshcatVisualiser:
     def _cloud(self, obs: Observation, model: torch.nn.Module | None) -> None:
         import meshcat.geometry as g
 
-        labels, palette = obs.part.astype(int) + 1, PART_COLOURS
+        labels = obs.part.astype(int)
         if model is not None and hasattr(model, "se3_head"):
             with torch.no_grad():
                 pts = torch.from_numpy(obs.points_cam).float()[None]
                 u = torch.tensor([[0.0, 0.0, *obs.pusher_xy_m]], dtype=torch.float32)
                 masks = model(pts, u, torch.from_numpy(obs.valid)[None]).masks
-            labels, palette = masks[0].argmax(0).numpy(), MASK_COLOURS
+            labels = masks[0].argmax(0).numpy()
         T = self.world.camera.T_world_cam
         p = (T[:3, :3] @ obs.points_cam.reshape(3, -1) + T[:3, 3:])[:, obs.valid.ravel()]
-        colours = palette[labels.ravel()[obs.valid.ravel()] % len(palette)].T
+        colours = COLOURS[labels.ravel()[obs.valid.ravel()] % len(COLOURS)].T
         self.vis["cloud"].set_object(g.PointCloud(p, colours, size=0.006))
 
     def _place(self, target: Any, obs: Observation, info: PlanInfo | None) -> None:
