@@ -22,6 +22,7 @@ import numpy as np
 from planner.loop import PushConfig, run_push
 from scenarios import Scenario, load_scenario
 from sim import PushWorld
+from sim.dataset import differences
 from sim.shards import atomic_write_json
 
 
@@ -130,11 +131,7 @@ def run_trials(
     if meta_path.exists():
         old = json.loads(meta_path.read_text())
         if old != asdict(cfg):
-            diffs = [
-                f"{k}: folder has {old.get(k)!r}, this run asks for {v!r}"
-                for k, v in asdict(cfg).items()
-                if old.get(k) != v
-            ]
+            diffs = differences(old, asdict(cfg))
             raise ValueError(
                 f"{out} holds other trials ({'; '.join(diffs)}); use a new --out folder"
             )

@@ -21,7 +21,7 @@ import torch
 
 from scenarios import Scenario
 from se3net.model import ModelConfig, build_model
-from sim.dataset import CONTROL_LAYOUT, code_version
+from sim.dataset import CONTROL_LAYOUT, code_version, differences
 from sim.shards import atomic_write_bytes
 
 CHECKPOINT_FORMAT = 1
@@ -132,14 +132,10 @@ def load_checkpoint(
             f"this code uses {list(CONTROL_LAYOUT)}"
         )
     if scenario is not None:
-        ours = scenario_fingerprint(scenario)
-        diffs = [
-            f"{section}.{key}: model has {blob['fingerprint'][section][key]!r}, "
-            f"scenario {scenario.name!r} has {value!r}"
-            for section, fields in ours.items()
-            for key, value in fields.items()
-            if blob["fingerprint"][section].get(key) != value
-        ]
+        theirs = f"scenario {scenario.name!r} has"
+        diffs = differences(
+            blob["fingerprint"], scenario_fingerprint(scenario), old_has="model has", new_has=theirs
+        )
         if diffs:
             raise CheckpointError(
                 f"checkpoint {path} does not fit scenario {scenario.name!r}: "

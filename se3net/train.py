@@ -22,6 +22,7 @@ from se3net.checkpoint import manifest_hash, read_checkpoint, save_checkpoint
 from se3net.data import PushDataset
 from se3net.metrics import FlowStats, point_loss
 from se3net.model import ModelConfig, build_model, sharpening
+from sim.dataset import differences
 
 
 class TrainingDiverged(RuntimeError):
@@ -151,11 +152,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
         blob = read_checkpoint(last)
         state = blob["train_state"]
         if state["config"] != asdict(cfg):
-            diffs = [
-                f"{k}: {state['config'].get(k)!r} -> {v!r}"
-                for k, v in asdict(cfg).items()
-                if state["config"].get(k) != v
-            ]
+            diffs = differences(state["config"], asdict(cfg), old_has="the run has")
             raise ValueError(
                 f"--resume with other settings than the run's ({'; '.join(diffs)}); "
                 "use the original ones"

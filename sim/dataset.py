@@ -224,14 +224,29 @@ def make_shard(cfg: DataConfig, i: int, out_dir: str) -> tuple[int, str, dict[st
     return i, digest, stats
 
 
-def _diff(a: Any, b: Any, path: str = "") -> list[str]:
-    if isinstance(a, dict) and isinstance(b, dict):
+def differences(
+    old: Any,
+    new: Any,
+    *,
+    old_has: str = "folder has",
+    new_has: str = "this run asks for",
+    path: str = "",
+) -> list[str]:
+    """Where two (nested) JSON-like configurations differ, one ``"dotted.key: <old_has> X,
+    <new_has> Y"`` line each: the shared wording of every "this is not the same run" error."""
+    if isinstance(old, dict) and isinstance(new, dict):
         return [
             d
-            for k in sorted(set(a) | set(b))
-            for d in _diff(a.get(k), b.get(k), f"{path}.{k}".lstrip("."))
+            for k in [*new, *(k for k in old if k not in new)]  # in the new config's order
+            for d in differences(
+                old.get(k),
+                new.get(k),
+                old_has=old_has,
+                new_has=new_has,
+                path=f"{path}.{k}".lstrip("."),
+            )  # fmt: skip
         ]
-    return [] if a == b else [f"{path}: folder has {a!r}, this run asks for {b!r}"]
+    return [] if old == new else [f"{path}: {old_has} {old!r}, {new_has} {new!r}"]
 
 
 def open_folder(out_dir: Path, ident: dict[str, Any]) -> dict[str, Any]:
@@ -259,7 +274,7 @@ def open_folder(out_dir: Path, ident: dict[str, Any]) -> dict[str, Any]:
             raise DataError(
                 f"{path} is corrupted ({err}); delete the folder and generate again"
             ) from None
-        diffs = _diff(manifest.get("identity"), ident)
+        diffs = differences(manifest.get("identity"), ident)
         headline = ("scenario.name:", "seed:", "format:")  # the differences people look for first
         diffs.sort(key=lambda d: not d.startswith(headline))
         if diffs:
