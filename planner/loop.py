@@ -137,45 +137,39 @@ def run_push(
         PlannerConfig(seed=cfg.seed),
     )
     period = yaw_period(world.objects[cfg.object_index])
+
+    def errors() -> tuple[float, float]:
+        return pose_errors(obs.object_poses[cfg.object_index], goal, period)
+
+    def reached() -> bool:
+        pos_err, yaw_err = errors()
+        return pos_err <= TIGHT[0] and yaw_err <= TIGHT[1]
+
     records: list[StepRecord] = []
     reason = "budget"
     viz = viz or NullVisualiser()
     viz.start(world, obs, goal, object_index=cfg.object_index, horizon=planner.cfg.horizon,
               model=getattr(dynamics, "model", None))  # fmt: skip
     try:
-        obs, reason = _loop(cfg, world, obs, planner, goal, period, records, on_step, viz)
+        for step in range(cfg.max_steps):
+            if reached():
+                break
+            action, info = planner.plan(plan_state(obs, world, cfg.object_index))
+            obs = world.step(action)
+            viz.step(obs, info)
+            pose = obs.object_poses[cfg.object_index]
+            rec = StepRecord(step + 1, action.tolist(), pose.tolist(), *errors(), info.wall_ms,
+                             info.predicted_poses.tolist())  # fmt: skip
+            records.append(rec)
+            if on_step is not None:
+                on_step(rec)
+            if obs.done:
+                reason = obs.reason
+                break
     finally:
         viz.finish()
-    return _result(cfg, obs, goal, period, records, reason)
-
-
-def _loop(cfg, world, obs, planner, goal, period, records, on_step, viz):
-    """Observe, plan, apply, until the goal is reached, the episode ends or the budget is spent."""
-    reason = "budget"
-    for step in range(cfg.max_steps):
-        pos_err, yaw_err = pose_errors(obs.object_poses[cfg.object_index], goal, period)
-        if pos_err <= TIGHT[0] and yaw_err <= TIGHT[1]:
-            reason = "reached"
-            break
-        action, info = planner.plan(plan_state(obs, world, cfg.object_index))
-        obs = world.step(action)
-        viz.step(obs, info)
-        pose = obs.object_poses[cfg.object_index]
-        pos_err, yaw_err = pose_errors(pose, goal, period)
-        rec = StepRecord(step + 1, action.tolist(), pose.tolist(), pos_err, yaw_err, info.wall_ms,
-                         info.predicted_poses.tolist())  # fmt: skip
-        records.append(rec)
-        if on_step is not None:
-            on_step(rec)
-        if obs.done:
-            reason = obs.reason
-            break
-    return obs, reason
-
-
-def _result(cfg, obs, goal, period, records, reason) -> PushResult:
-    pos_err, yaw_err = pose_errors(obs.object_poses[cfg.object_index], goal, period)
-    if reason == "budget" and pos_err <= TIGHT[0] and yaw_err <= TIGHT[1]:
+    pos_err, yaw_err = errors()
+    if reason == "budget" and reached():
         reason = "reached"
     return PushResult(
         seed=cfg.seed,
