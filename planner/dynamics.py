@@ -232,10 +232,9 @@ def make_dynamics(
     if name == "no-motion":
         return NoMotionDynamics(scenario)
     if name in ("se3net", "flow"):
-        from se3net.checkpoint import DEFAULT_MODEL, load_checkpoint
+        from se3net.checkpoint import load_checkpoint
 
-        path = DEFAULT_MODEL if model in (None, "default") else model
-        net, blob = load_checkpoint(path, scenario=scenario, device=device)
+        net, blob = load_checkpoint(model or "default", scenario=scenario, device=device)
         kind = "flow" if blob["model"]["variant"].startswith("flow") else "se3net"
         return LearnedDynamics(net, scenario, name=kind, device=device)
     raise ValueError(f"unknown dynamics backend {name!r}; known: {', '.join(BACKENDS)}")

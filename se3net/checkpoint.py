@@ -87,8 +87,9 @@ def save_checkpoint(
 
 
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """The raw contents of a checkpoint file, checked to be readable and of this format."""
-    path = Path(path)
+    """The raw contents of a checkpoint file (``"default"``: the shipped model), checked to be
+    readable and of this format."""
+    path = DEFAULT_MODEL if str(path) == "default" else Path(path)
     if not path.is_file():
         raise CheckpointError(f"checkpoint {path} does not exist; train one with `se3push train`")
     try:

@@ -93,11 +93,9 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
-    from se3net.checkpoint import DEFAULT_MODEL
     from se3net.evaluate import evaluate, table_markdown
 
-    paths = [DEFAULT_MODEL if c == "default" else c for c in args.checkpoints]
-    results = evaluate(paths, args.data, args.out, max_examples=args.max_examples)
+    results = evaluate(args.checkpoints, args.data, args.out, max_examples=args.max_examples)
     print(table_markdown(results, args.data))
     print(f"wrote {args.out}/table.md, eval.json and example PNGs")
     return 0

@@ -24,6 +24,7 @@ def test_default_model_fits_single_box_and_beats_no_motion_on_unseen_episodes(un
         DEFAULT_MODEL, scenario=load_scenario("single_box"), variant="se3net"
     )
     assert DEFAULT_MODEL.stat().st_size < 8e6
+    assert load_checkpoint("default")[1]["data_hash"] == blob["data_hash"]  # the name resolves
     ds = PushDataset(unseen, split="train")  # seed 123: episodes the model never saw
     b = ds.batch(range(len(ds)))
     with torch.no_grad():
