@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.loop import PushConfig, run_push
+from planner.loop import PushConfig, pose_errors, run_push
 from scenarios import Scenario, load_scenario
 from sim import PushWorld
 from sim.dataset import differences
@@ -59,8 +59,7 @@ def draw_trial(scenario: Scenario, seed: int, i: int) -> dict[str, Any]:
     x0, x1, y0, y1 = g.region_m
     for _ in range(10_000):
         goal = np.array([rng.uniform(x0, x1), rng.uniform(y0, y1), rng.uniform(-math.pi, math.pi)])
-        dist = float(np.hypot(*(goal[:2] - start[:2])))
-        turn = abs(math.degrees((goal[2] - start[2] + math.pi) % (2 * math.pi) - math.pi))
+        dist, turn = pose_errors(goal, start, 2 * math.pi)
         if dist <= g.max_distance_m and (dist >= g.min_distance_m or turn >= g.min_yaw_deg):
             return {
                 "trial": i,
