@@ -5,6 +5,11 @@ Per step h of a rollout: the object's position error and symmetry-aware yaw erro
 (the terminal step weighted more than the running steps), a shaping term that draws the pusher
 to the object's far side from the goal while the object is predicted not to move, penalties
 on action size and change, and a penalty for the pusher leaving the workspace.
+
+The shaping target goes round the object: a pusher on the goal's side of it is drawn to a
+waypoint on a circle about the object, a step round toward the far side, not straight at the
+pre-push point through the object (which would push it the wrong way, and with a short
+horizon trap the planner there).
 """
 
 from __future__ import annotations
@@ -37,6 +42,12 @@ class CostConfig:
     """weight of the pusher's distance to the pre-push point, while nothing moves"""
     shaping_scale_m: float = 0.03
     """pusher distance that costs 1 in the shaping term"""
+    behind_deg: float = 60.0
+    """a pusher within this angle of straight behind the object heads for the pre-push point"""
+    round_step_deg: float = 75.0
+    """otherwise it heads this far round the object, toward the far side"""
+    round_clearance_m: float = 0.02
+    """the way round keeps this much clearance between pusher and object footprint"""
     moving_m: float = 0.005
     """predicted object displacement over the horizon above which shaping fades out"""
     w_action: float = 0.02
@@ -90,6 +101,7 @@ class PushCost:
     def __init__(self, scenario: Scenario, goal: torch.Tensor, cfg: CostConfig = CostConfig()):
         self.cfg, self.goal = cfg, check_goal(scenario, goal)
         self.bound = scenario.action.max_speed_m_s
+        self.pusher_radius = scenario.arm.pusher_radius_m
         self.half = torch.tensor(scenario.table.size_m) / 2 - cfg.workspace_margin_m
         self.last_action = torch.zeros(2)
 
@@ -100,6 +112,23 @@ class PushCost:
         d = d / d.norm().clamp_min(1e-6)
         back = state.object_spec.footprint_radius_m + 0.02
         return obj - back * d
+
+    def shaping_target(self, state: PlanState) -> torch.Tensor:
+        """Where the shaping term draws the pusher: the pre-push point when the pusher is
+        already behind the object, else a waypoint a step round the object toward it."""
+        c = self.cfg
+        obj = state.object_pose[:2]
+        behind = self.pre_push_point(state) - obj
+        behind = behind / behind.norm().clamp_min(1e-9)  # unit vector from object to pre-push
+        rel = state.pusher_xy.to(obj) - obj
+        phi = math.atan2(float(behind[0] * rel[1] - behind[1] * rel[0]), float(behind @ rel))
+        if abs(phi) <= math.radians(c.behind_deg):
+            return self.pre_push_point(state)
+        step = phi - math.copysign(math.radians(c.round_step_deg), phi)
+        radius = state.object_spec.footprint_radius_m + self.pusher_radius + c.round_clearance_m
+        cs, sn = math.cos(step), math.sin(step)
+        way = torch.stack([cs * behind[0] - sn * behind[1], sn * behind[0] + cs * behind[1]])
+        return obj + radius * way
 
     def residuals(self, state: PlanState, rollout: Rollout, actions: torch.Tensor) -> torch.Tensor:
         c = self.cfg
@@ -119,7 +148,7 @@ class PushCost:
         # sqrt of the gate exp(-moved^2 / m^2), written without sqrt (its gradient at 0 is NaN)
         sqrt_gate = torch.exp(-0.5 * moved_sq / c.moving_m**2)
         dist = (
-            rollout.pusher_xy[:, -1] - self.pre_push_point(state).to(actions)
+            rollout.pusher_xy[:, -1] - self.shaping_target(state).to(actions)
         ) / c.shaping_scale_m
         res.append(math.sqrt(c.w_shaping) * sqrt_gate[:, None] * dist)
         res.append(math.sqrt(c.w_action) * actions.flatten(1) / self.bound)

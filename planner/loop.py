@@ -13,6 +13,7 @@ import torch
 
 from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
 from planner.cost import yaw_period
+from planner.diagnostics import exploitation, step_figures
 from planner.viz import MeshcatVisualiser, NullVisualiser
 from scenarios import Scenario, load_scenario
 from sim import PushWorld
@@ -58,6 +59,14 @@ class StepRecord:
     replan_ms: float
     predicted_poses: list[list[float]]
     """(H,3) the chosen plan's predicted object poses"""
+    predicted_disp_m: float
+    """the object's displacement the plan predicted for the executed action"""
+    actual_disp_m: float
+    """the displacement that happened"""
+    predicted_progress_m: float
+    """progress toward the goal position the plan predicted for the executed action"""
+    actual_progress_m: float
+    """the progress that happened"""
 
 
 @dataclass
@@ -74,6 +83,8 @@ class PushResult:
     replan_ms_median: float
     reason: str
     """"reached", "budget", or why the episode ended"""
+    diagnostics: dict = field(default_factory=dict)
+    """exploitation diagnostics over the executed steps (``planner.diagnostics``)"""
     records: list[StepRecord] = field(default_factory=list)
 
     def summary(self) -> dict:
@@ -154,12 +165,14 @@ def run_push(
         for step in range(cfg.max_steps):
             if reached():
                 break
+            before = obs.object_poses[cfg.object_index].copy()
             action, info = planner.plan(plan_state(obs, world, cfg.object_index))
             obs = world.step(action)
             viz.step(obs, info)
             pose = obs.object_poses[cfg.object_index]
+            figures = step_figures(before, info.predicted_poses[0], pose, goal)
             rec = StepRecord(step + 1, action.tolist(), pose.tolist(), *errors(), info.wall_ms,
-                             info.predicted_poses.tolist())  # fmt: skip
+                             info.predicted_poses.tolist(), **figures)  # fmt: skip
             records.append(rec)
             if on_step is not None:
                 on_step(rec)
@@ -181,5 +194,6 @@ def run_push(
         sim_time_s=obs.time_s,
         replan_ms_median=float(np.median([r.replan_ms for r in records])) if records else 0.0,
         reason=reason,
+        diagnostics=exploitation([asdict(r) for r in records]),
         records=records,
     )

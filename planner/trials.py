@@ -5,6 +5,8 @@ uniformly over the scenario's goal region, at least ``min_distance_m`` or ``min_
 from the object's start and at most ``max_distance_m`` (not drawn from demonstrations). So
 the same seed gives the same trial set for every model and planner, and results compare pair
 by pair. Finished trials are appended to ``trials.jsonl``; a run started again skips them.
+The set is the same prefix for any ``n``, so a folder can be extended to more trials, or
+summarised over its first ``n`` (a study reuses a larger trial run that way).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.diagnostics import pooled
 from planner.loop import PushConfig, pose_errors, run_push
 from scenarios import Scenario, load_scenario
 from sim import PushWorld
@@ -108,6 +111,7 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
         out[f"success_{tol}_ci95"] = list(wilson(k, n))
     for key in ("final_pos_err_m", "final_yaw_err_deg", "steps", "replan_ms_median"):
         out[f"median_{key}"] = float(np.median([r[key] for r in records])) if records else None
+    out["diagnostics"] = pooled(r["diagnostics"] for r in records)
     return out
 
 
@@ -128,13 +132,14 @@ def run_trials(
     out.mkdir(parents=True, exist_ok=True)
     meta_path, log = out / "config.json", out / "trials.jsonl"
     if meta_path.exists():
-        old = json.loads(meta_path.read_text())
-        if old != asdict(cfg):
-            diffs = differences(old, asdict(cfg))
+        old, new = json.loads(meta_path.read_text()), asdict(cfg)
+        old.pop("n", None), new.pop("n")  # the set is a prefix: any n extends or summarises it
+        if old != new:
             raise ValueError(
-                f"{out} holds other trials ({'; '.join(diffs)}); use a new --out folder"
+                f"{out} holds other trials ({'; '.join(differences(old, new))}); "
+                "use a new --out folder"
             )
-    else:
+    if not meta_path.exists() or cfg.n > json.loads(meta_path.read_text())["n"]:
         atomic_write_json(meta_path, asdict(cfg))
     records = {}
     if log.exists():

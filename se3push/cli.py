@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from scenarios import ScenarioError
 from sim import ActionError
@@ -118,9 +119,34 @@ def _cmd_trials(args: argparse.Namespace) -> int:
         f"{s['median_final_yaw_err_deg']:.1f} deg\n"
         f"  median steps            {s['median_steps']:.0f}\n"
         f"  median replan           {s['median_replan_ms_median']:.0f} ms\n"
+        f"  model exploitation      {_diagnostics_line(s['diagnostics'])}\n"
         f"wrote {args.out}/trials.jsonl, summary.json, paths.png"
     )
     return 0
+
+
+def _diagnostics_line(d: dict) -> str:
+    def pct(x: float | None) -> str:
+        return "–" if x is None else f"{x:.0%}"
+
+    ratio = "–" if d["progress_ratio"] is None else f"{d['progress_ratio']:.2f}"
+    return (
+        f"phantom motion {pct(d['phantom_rate'])} of {d['still_steps']} still steps, "
+        f"missed motion {pct(d['missed_rate'])} of {d['moved_steps']} pushes, "
+        f"predicted/actual progress {ratio}"
+    )
+
+
+def _cmd_study(args: argparse.Namespace) -> int:
+    from planner.study import StudyConfig, run_study
+
+    cfg = StudyConfig(scenario=args.scenario, data=args.data, models=tuple(args.models),
+                      trials=args.trials, seed=args.seed, planner=args.planner,
+                      max_steps=args.max_steps, max_examples=args.max_examples)  # fmt: skip
+    result = run_study(cfg, args.out, workers=args.workers)
+    print((Path(args.out) / "study.md").read_text())
+    print(f"wrote {args.out}/study.md, study.json, study.png and trials/")
+    return 0 if result["rows"] else 1
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -195,6 +221,24 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="folder for trials.jsonl, summary.json, paths.png")
     s.add_argument("--workers", type=int, default=1, help="processes")
     s.set_defaults(run=_cmd_trials)
+
+    s = sub.add_parser("study", help="how model accuracy relates to closed-loop success")
+    s.add_argument("--scenario", default="single_box", help="scenario name or TOML path")
+    s.add_argument("--data", required=True, help="dataset whose test split gives the accuracy")
+    s.add_argument(
+        "--models",
+        nargs="+",
+        required=True,
+        help="oracle, no-motion, default or checkpoint paths (LABEL=PATH names one)",
+    )
+    s.add_argument("--trials", type=int, default=30, help="closed-loop trials per model")
+    s.add_argument("--seed", type=int, default=0, help="seed of the trial set")
+    s.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
+    s.add_argument("--max-steps", type=int, default=60, help="control steps per trial")
+    s.add_argument("--max-examples", type=int, default=1000, help="held-out examples per model")
+    s.add_argument("--out", required=True, help="folder for study.md/.json/.png and trials/")
+    s.add_argument("--workers", type=int, default=1, help="processes for the trials")
+    s.set_defaults(run=_cmd_study)
 
     s = sub.add_parser("bench", help="time the hot paths (medians over repeats)")
     s.add_argument("what", choices=["world", "data", "model", "planner"], help="which benchmark")

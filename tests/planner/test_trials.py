@@ -63,6 +63,10 @@ def test_a_resumed_run_gives_the_same_results(tmp_path, monkeypatch):
     assert a == b
     assert again["success_tight"] == ref["success_tight"] and again["trials"] == 3
     assert (tmp_path / "b" / "paths.png").read_bytes()[:4] == b"\x89PNG"
+    prefix = run_trials(TrialsConfig("tiny", n=2, model="no-motion", max_steps=4), tmp_path / "b",
+                        progress=False)  # fmt: skip
+    assert done == [1, 2] and prefix["trials"] == 2  # summarised from the finished trials
+    assert prefix["diagnostics"]["still_steps"] + prefix["diagnostics"]["moved_steps"] <= 2 * 4
     with pytest.raises(ValueError, match="holds other trials"):
         run_trials(
             TrialsConfig("tiny", n=3, model="oracle", max_steps=4), tmp_path / "b", progress=False
