@@ -1,0 +1,336 @@
+"""How model accuracy relates to planning success.
+
+For each model (checkpoints from different points of training, the variants, and the
+``oracle`` and ``no-motion`` backends as the two ends) a study measures, on the same held-out
+data and the same trial set:
+
+- one-step flow MSE and its ratio to no-motion (the paper's metric);
+- the pushed object's pose error after the planning horizon when the model is rolled forward
+  exactly as the planner rolls it (each prediction fed back, the pusher integrated from the
+  commands, the pose fitted to the predicted points), over held-out windows where the object
+  moves: what the planner's cost actually sees;
+- mask quality (binariness, IoU with the true parts);
+- closed-loop success at both tolerances, final errors, steps, and the exploitation
+  diagnostics (``planner.diagnostics``).
+
+The two ends are measured, not assumed, where the data allow: no-motion's flow is zero and
+its "mask" is one rigid body, the oracle's flow is the true flow and its masks are the true
+parts. The oracle's horizon pose error is zero by construction (it is the simulator, whose
+predictions the tests check against the world to 1e-6); the data hold no simulator state to
+re-run it from. Which accuracy measure predicts success is a Spearman rank correlation over
+the models.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from planner.dynamics import PlanState, make_dynamics
+from planner.trials import TrialsConfig, run_trials
+from sim.shards import atomic_write_bytes, atomic_write_json
+
+BACKEND_MODELS = ("oracle", "no-motion")
+HORIZON_MOVED_M = 3e-3
+"""a held-out window counts for the horizon error if the object moves more than this"""
+
+ACCURACY = {
+    # key: (label, lower is better)
+    "ratio_to_no_motion": ("one-step flow MSE / no-motion", True),
+    "horizon_pos_err_cm": ("horizon position error (cm)", True),
+    "horizon_yaw_err_deg": ("horizon yaw error (deg)", True),
+    "mask_binariness": ("mask binariness", False),
+    "iou": ("mask IoU", False),
+}
+"""the accuracy measures a study correlates with success"""
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """A study of several models on one scenario."""
+
+    scenario: str
+    """scenario name or TOML path"""
+    data: str
+    """dataset folder whose test split gives the accuracy figures"""
+    models: tuple[str, ...]
+    """oracle, no-motion, default, or checkpoint paths; ``LABEL=PATH`` names a row"""
+    trials: int = 30
+    """closed-loop trials per model (the same set for every model)"""
+    seed: int = 0
+    """seed of the trial set"""
+    planner: str = "cem"
+    max_steps: int = 60
+    max_examples: int = 1000
+    """held-out one-step examples (and horizon windows) per model"""
+
+    def __post_init__(self) -> None:
+        if len(self.models) < 1:
+            raise ValueError("--models needs at least one model")
+        labels = [label for label, _ in parse_models(self.models)]
+        if len(set(labels)) != len(labels):
+            raise ValueError(f"two models share a label in {labels}; name them with LABEL=PATH")
+        if self.trials < 1 or self.max_examples < 1:
+            raise ValueError(
+                f"--trials and --max-examples must be positive, got {self.trials}, "
+                f"{self.max_examples}"
+            )
+
+
+def parse_models(models: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:
+    """(label, model) pairs: ``LABEL=PATH`` as given, else a label from the name or path."""
+    out = []
+    for m in models:
+        if "=" in m:
+            label, model = m.split("=", 1)
+        elif m in BACKEND_MODELS or m == "default":
+            label, model = m, m
+        else:
+            p = Path(m)
+            label = p.parent.name if p.stem in ("best", "last") else f"{p.parent.name}/{p.stem}"
+            model = m
+        out.append((label, model))
+    return out
+
+
+def _pose(T: np.ndarray) -> np.ndarray:
+    """Planar pose (..., 3) of homogeneous transforms (..., 4, 4)."""
+    return np.stack([T[..., 0, 3], T[..., 1, 3], np.arctan2(T[..., 1, 0], T[..., 0, 0])], -1)
+
+
+@torch.no_grad()
+def horizon_pose_error(
+    model: str, data: str | Path, horizon: int, *, object_index: int = 0, max_windows: int = 500
+) -> dict[str, float]:
+    """Mean position (cm) and yaw (deg) error of the object's predicted pose after ``horizon``
+    steps, over held-out windows where it moves, the model rolled as the planner rolls it."""
+    from se3net.data import PushDataset
+    from se3net.evaluate import _subset
+    from sim.world import FIRST_OBJECT_PART
+
+    ds = PushDataset(data, split="test", horizon=horizon)
+    part_id = FIRST_OBJECT_PART + object_index
+    e, t = ds.items[:, 0], ds.items[:, 1]
+    T = ds.a["T_world_part"]
+    start, end = _pose(T[e, t, part_id]), _pose(T[e, t + horizon, part_id])
+    moving = np.flatnonzero(np.hypot(*(end - start)[:, :2].T) > HORIZON_MOVED_M)
+    if len(moving) == 0:
+        raise ValueError(f"the test split of {data} has no window where object {object_index} "
+                         f"moves over {horizon} steps; generate more data")  # fmt: skip
+    pick = moving[_subset(len(moving), max_windows)]
+    if model == "oracle":  # the simulator itself (tested against the world to 1e-6)
+        return {"horizon_pos_err_cm": 0.0, "horizon_yaw_err_deg": 0.0, "windows": len(pick)}
+    if model == "no-motion":
+        dynamics = make_dynamics("no-motion", ds.scenario)
+    else:
+        dynamics = make_dynamics("se3net", ds.scenario, model=model)
+    pos_err, yaw_err = [], []
+    for s in range(0, len(pick), 64):
+        idx = pick[s : s + 64]
+        b = ds.batch(idx)
+        for j, i in enumerate(idx):
+            state = PlanState(
+                points=b["points"][j],
+                valid=b["valid"][j],
+                object_mask=b["part"][j] == part_id,
+                object_pose=torch.from_numpy(start[i]).float(),
+                pusher_xy=b["u"][j, 0, 2:],
+                object_spec=None,  # not needed by a rollout
+                object_index=object_index,
+            )
+            pred = dynamics.rollout(state, b["u"][j, None, :, :2]).object_poses[0, -1].numpy()
+            pos_err.append(math.hypot(*(pred[:2] - end[i, :2])))
+            d = pred[2] - end[i, 2]
+            yaw_err.append(abs(math.degrees((d + math.pi) % (2 * math.pi) - math.pi)))
+    return {
+        "horizon_pos_err_cm": 100 * float(np.mean(pos_err)),
+        "horizon_yaw_err_deg": float(np.mean(yaw_err)),
+        "windows": len(pick),
+    }
+
+
+@torch.no_grad()
+def backend_accuracy(model: str, data: str | Path, *, max_examples: int) -> dict[str, Any]:
+    """One-step flow and mask figures of the two ends: no-motion (zero flow, one rigid body)
+    and the oracle (the true flow, the true parts as masks)."""
+    from se3net.data import PushDataset
+    from se3net.evaluate import _subset
+    from se3net.metrics import FlowStats, MaskStats
+
+    ds = PushDataset(data, split="test", horizon=1)
+    flow, masks = FlowStats(), MaskStats()
+    n_parts = int(ds.a["T_world_part"].shape[2])
+    idx = _subset(len(ds), max_examples)
+    for s in range(0, len(idx), 64):
+        b = ds.batch(idx[s : s + 64])
+        target = b["target"][:, 0]
+        if model == "oracle":
+            pred = target
+            m = torch.nn.functional.one_hot(b["part"].clamp_min(0), n_parts).permute(0, 3, 1, 2)
+        else:
+            pred = b["points"]
+            m = torch.ones_like(b["part"])[:, None]
+        flow.add(pred, b["points"], target, b["target_valid"][:, 0])
+        masks.add(m.float(), b["part"], b["points"], target)
+    return {
+        "variant": model,
+        "flow_mse_cm2": flow.mse_cm2,
+        "ratio_to_no_motion": flow.ratio,
+        "mask_binariness": masks.binariness,
+        "iou": masks.iou,
+    }
+
+
+def model_accuracy(model: str, data: str | Path, *, max_examples: int) -> dict[str, Any]:
+    """The one-step and mask figures of a checkpoint or backend on the test split."""
+    if model in BACKEND_MODELS:
+        return backend_accuracy(model, data, max_examples=max_examples)
+    from se3net.evaluate import evaluate_checkpoint
+
+    r = evaluate_checkpoint(model, data, max_examples=max_examples)
+    return {
+        "variant": r.variant,
+        "flow_mse_cm2": r.flow_mse,
+        "ratio_to_no_motion": r.ratio_to_no_motion,
+        "mask_binariness": r.mask_binariness,
+        "iou": r.iou,
+    }
+
+
+def rank_correlations(rows: list[dict[str, Any]], success_key: str = "success_tight") -> dict:
+    """Spearman correlation of each accuracy measure with success over the models that have
+    it, signed so that a measure that predicts success well is near +1 whatever its
+    direction (lower-is-better measures are negated). None with fewer than three models or
+    no variation."""
+    from se3net.metrics import spearman
+
+    out = {}
+    for key, (_, lower_better) in ACCURACY.items():
+        pairs = [(r[key], r[success_key]) for r in rows if r.get(key) is not None]
+        x, y = np.array(pairs, dtype=float).reshape(-1, 2).T
+        if len(pairs) < 3 or np.ptp(x) == 0 or np.ptp(y) == 0:
+            out[key] = None
+            continue
+        out[key] = spearman(-x if lower_better else x, y)
+    return out
+
+
+def finding(corr: dict[str, float | None], n_models: int) -> str:
+    """The study's result in plain words."""
+    known = {k: v for k, v in corr.items() if v is not None}
+    if not known:
+        return "Too few models, or no variation in success, to rank the accuracy measures."
+    best = max(known, key=known.get)
+    order = ", ".join(f"{ACCURACY[k][0]} {v:+.2f}" for k, v in
+                      sorted(known.items(), key=lambda kv: -kv[1]))  # fmt: skip
+    return (
+        f"Over {n_models} models, {ACCURACY[best][0]} predicts closed-loop success best "
+        f"(Spearman rank correlation {known[best]:+.2f}, signed so that +1 means the more "
+        f"accurate model always succeeds more often). All measures: {order}."
+    )
+
+
+def _fmt(x: Any, spec: str = ".3f") -> str:
+    return "–" if x is None else format(x, spec)
+
+
+def table_markdown(rows: list[dict[str, Any]]) -> str:
+    """One row per model, every figure of the study."""
+    head = (
+        "| model | flow MSE (cm²) | ratio to no-motion | horizon pos err (cm) | horizon yaw err "
+        "(deg) | binariness | IoU | success 2 cm/10° [95 % CI] | success 5 cm/20° | median "
+        "final err (cm / deg) | median steps | phantom | missed | progress ratio |"
+    )
+    lines = [head, "|---" * 14 + "|"]
+    for r in rows:
+        d = r["diagnostics"]
+        lo, hi = r["success_tight_ci95"]
+        lines.append(
+            f"| {r['label']} | {_fmt(r['flow_mse_cm2'])} | {_fmt(r['ratio_to_no_motion'])} | "
+            f"{_fmt(r['horizon_pos_err_cm'], '.2f')} | {_fmt(r['horizon_yaw_err_deg'], '.1f')} | "
+            f"{_fmt(r['mask_binariness'])} | {_fmt(r['iou'])} | "
+            f"{r['success_tight']:.0%} [{lo:.0%}–{hi:.0%}] | {r['success_loose']:.0%} | "
+            f"{100 * r['median_final_pos_err_m']:.1f} / {r['median_final_yaw_err_deg']:.1f} | "
+            f"{r['median_steps']:.0f} | {_fmt(d['phantom_rate'], '.0%')} | "
+            f"{_fmt(d['missed_rate'], '.0%')} | {_fmt(d['progress_ratio'], '.2f')} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def plot_study(rows: list[dict[str, Any]], out: Path) -> None:
+    """Success (with its 95 % interval) against each accuracy measure, a point per model."""
+    from sim.render import _pyplot, save_figure
+
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(ACCURACY), figsize=(4.2 * len(ACCURACY), 4), squeeze=False)
+    for ax, (key, (label, lower_better)) in zip(axes[0], ACCURACY.items(), strict=True):
+        for r in rows:
+            if r.get(key) is None:
+                continue
+            lo, hi = r["success_tight_ci95"]
+            p = r["success_tight"]
+            ax.errorbar(r[key], p, yerr=[[p - lo], [hi - p]], fmt="o", capsize=3)
+            ax.annotate(r["label"], (r[key], p), fontsize=7, xytext=(3, 3),
+                        textcoords="offset points")  # fmt: skip
+        ax.set_xlabel(label + (" (lower is better)" if lower_better else ""))
+        ax.set_ylim(-0.05, 1.05)
+        ax.grid(alpha=0.3)
+    axes[0, 0].set_ylabel("success (2 cm, 10°)")
+    fig.suptitle("closed-loop success against model accuracy, one point per model")
+    save_figure(fig, out)
+
+
+def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[str, Any]:
+    """Measure every model; write ``study.md``, ``study.json`` and ``study.png`` to ``out``.
+
+    Per-model trials go to ``out/trials/<label>`` and resume like ``se3push trials``;
+    accuracy figures are cached in ``out/accuracy/<label>.json``.
+    """
+    from planner.base import PlannerConfig
+    from scenarios import load_scenario
+
+    out = Path(out)
+    load_scenario(cfg.scenario)
+    horizon = PlannerConfig().horizon
+    rows = []
+    for label, model in parse_models(cfg.models):
+        safe = label.replace("/", "_").replace("=", "_")
+        cache = out / "accuracy" / f"{safe}.json"
+        if cache.exists():
+            acc = json.loads(cache.read_text())
+        else:
+            acc = {
+                **model_accuracy(model, cfg.data, max_examples=cfg.max_examples),
+                **horizon_pose_error(model, cfg.data, horizon, max_windows=cfg.max_examples),
+            }
+            cache.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_json(cache, acc)
+        trials = TrialsConfig(
+            scenario=cfg.scenario, n=cfg.trials, model=model, planner=cfg.planner,
+            seed=cfg.seed, max_steps=cfg.max_steps,
+        )  # fmt: skip
+        summary = run_trials(trials, out / "trials" / safe, workers=workers)
+        summary.pop("config")
+        rows.append({"label": label, "model": model, **acc, **summary})
+    corr = rank_correlations(rows)
+    result = {
+        "config": asdict(cfg),
+        "rows": rows,
+        "rank_correlation_with_success": corr,
+        "finding": finding(corr, len(rows)),
+    }
+    atomic_write_json(out / "study.json", result)
+    text = (
+        table_markdown(rows) + f"\n{result['finding']}\n\nHorizon: {horizon} steps; "
+        f"{cfg.trials} trials per model (seed {cfg.seed}, planner {cfg.planner}); accuracy on "
+        f"the test split of `{cfg.data}`.\n"
+    )
+    atomic_write_bytes(out / "study.md", text.encode())
+    plot_study(rows, out / "study.png")
+    return result

@@ -1,0 +1,93 @@
+import json
+
+import pytest
+
+from planner.study import (
+    ACCURACY,
+    StudyConfig,
+    finding,
+    parse_models,
+    rank_correlations,
+    run_study,
+)
+from se3net.train import TrainConfig, train
+
+
+def test_rank_correlation_on_hand_made_models():
+    rows = [
+        {"ratio_to_no_motion": 0.1, "iou": 0.9, "success_tight": 0.9},
+        {"ratio_to_no_motion": 0.3, "iou": None, "success_tight": 0.5},
+        {"ratio_to_no_motion": 0.5, "iou": 0.8, "success_tight": 0.4},
+        {"ratio_to_no_motion": 1.0, "iou": 0.7, "success_tight": 0.0},
+    ]
+    for r in rows:
+        r.update(horizon_pos_err_cm=1.0, horizon_yaw_err_deg=None, mask_binariness=None)
+    corr = rank_correlations(rows)
+    # lower ratio, more success, in every pair: +1 after the sign for "lower is better"
+    assert corr["ratio_to_no_motion"] == pytest.approx(1.0)
+    # IoU over the three models that have one: ranks (3,2,1) against success (3,2,1) -> +1;
+    # the model without masks is left out, not counted as zero
+    assert corr["iou"] == pytest.approx(1.0)
+    rows[2]["iou"] = 0.95  # the best IoU now has middling success: (2,3,1) vs (3,2,1)
+    assert rank_correlations(rows)["iou"] == pytest.approx(0.5)
+    assert corr["horizon_pos_err_cm"] is None  # no variation
+    assert corr["horizon_yaw_err_deg"] is None and corr["mask_binariness"] is None
+    words = finding(corr, 4)
+    assert "predicts closed-loop success best" in words and ACCURACY["iou"][0] in words
+
+
+def test_model_labels_and_bad_settings():
+    assert parse_models(["oracle", "a=runs/x/best.pt", "runs/y/iter_000100.pt"]) == [
+        ("oracle", "oracle"),
+        ("a", "runs/x/best.pt"),
+        ("y/iter_000100", "runs/y/iter_000100.pt"),
+    ]
+    with pytest.raises(ValueError, match="share a label"):
+        StudyConfig("tiny", "d", models=("runs/a/best.pt", "other/a/best.pt"))
+    with pytest.raises(ValueError, match="must be positive"):
+        StudyConfig("tiny", "d", models=("oracle",), trials=0)
+
+
+@pytest.fixture(scope="module")
+def study_data(tmp_path_factory):
+    """Tiny data with three held-out episodes, in one of which (59) the box is pushed."""
+    from sim.dataset import DataConfig, generate
+
+    root = tmp_path_factory.mktemp("study_data")
+    generate(DataConfig("tiny", episodes=60, steps_per_episode=8, episodes_per_shard=20), root,
+             progress=False)  # fmt: skip
+    return root
+
+
+def test_study_end_to_end_on_tiny(study_data, tmp_path):
+    tiny_data = study_data
+    run = tmp_path / "run"
+    train(
+        TrainConfig(data=str(tiny_data), out=str(run), iters=4, batch=4, eval_every=2,
+                    val_examples=8, k=3, keep_every=2),
+        progress=False,
+    )  # fmt: skip
+    models = ("oracle", "no-motion", f"early={run}/iter_000002.pt", f"late={run}/iter_000004.pt")
+    cfg = StudyConfig("tiny", str(tiny_data), models=models, trials=2, max_steps=3,
+                      max_examples=40)  # fmt: skip
+    result = run_study(cfg, tmp_path / "study")
+    rows = {r["label"]: r for r in result["rows"]}
+    assert list(rows) == ["oracle", "no-motion", "early", "late"]
+    for label, r in rows.items():
+        for key in (*ACCURACY, "flow_mse_cm2", "success_tight", "success_loose", "median_steps"):
+            assert r[key] is not None, (label, key)
+    assert rows["oracle"]["ratio_to_no_motion"] == 0 and rows["oracle"]["iou"] == 1
+    assert rows["no-motion"]["ratio_to_no_motion"] == pytest.approx(1.0)
+    assert rows["no-motion"]["horizon_pos_err_cm"] > 0.3  # the windows are ones where it moves
+    table = (tmp_path / "study" / "study.md").read_text().splitlines()
+    body = [line for line in table if line.startswith("| ") and not line.startswith("| model")]
+    assert [line.split("|")[1].strip() for line in body] == list(rows)
+    assert all(cell.strip() for line in body for cell in line.split("|")[1:-1])
+    saved = json.loads((tmp_path / "study" / "study.json").read_text())
+    assert set(saved["rank_correlation_with_success"]) == set(ACCURACY) and saved["finding"]
+    assert (tmp_path / "study" / "study.png").read_bytes()[:4] == b"\x89PNG"
+    # a second run reuses the cached accuracy and the finished trials
+    again = run_study(cfg, tmp_path / "study")
+    assert [r["success_tight"] for r in again["rows"]] == [
+        r["success_tight"] for r in rows.values()
+    ]
