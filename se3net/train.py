@@ -4,6 +4,12 @@ A run folder holds ``last.pt`` (with optimiser and random states, to resume exac
 ``best.pt`` (the checkpoint with the lowest validation flow MSE), ``metrics.jsonl`` (one line
 per evaluation: train and validation loss, flow MSE and its ratio to no-motion) and, with
 ``keep_every``, ``iter_NNNNNN.pt`` snapshots for studies.
+
+With ``rollout_steps`` N > 1 the loss is taken on N-step rollouts in which each predicted
+cloud is fed back as the next input, exactly as the planner rolls the model (the pusher
+position in the controls integrated from the commanded velocities, not read from the data),
+averaged over the N steps; the best checkpoint is then the one with the lowest validation
+rollout loss. ``init`` starts from a checkpoint's weights (fine-tuning a one-step model).
 """
 
 from __future__ import annotations
@@ -61,15 +67,43 @@ class TrainConfig:
     """validation examples (a fixed, evenly spaced subset)"""
     keep_every: int = 0
     """also keep a checkpoint every N iterations (0: never)"""
+    rollout_steps: int = 1
+    """steps of each training rollout, predictions fed back (1: the paper's one-step loss)"""
+    init: str | None = None
+    """checkpoint whose weights (and normalisation) the run starts from"""
 
     def __post_init__(self) -> None:
-        for name in ("iters", "batch", "eval_every", "val_examples", "horizon"):
+        for name in ("iters", "batch", "eval_every", "val_examples", "horizon", "rollout_steps"):
             if getattr(self, name) < 1:
                 raise ValueError(
                     f"--{name.replace('_', '-')} must be positive, got {getattr(self, name)}"
                 )
         if not self.lr > 0:
             raise ValueError(f"--lr must be positive, got {self.lr}")
+
+
+def planner_controls(u: torch.Tensor, dt: float) -> torch.Tensor:
+    """Controls (B,N,4) as the planner forms them: the commanded velocities, and the pusher
+    position at each step's start integrated from them (the data's first position only)."""
+    start = u[:, :1, 2:]
+    moved = dt * torch.cumsum(u[:, :-1, :2], dim=1)
+    return torch.cat([u[..., :2], torch.cat([start, start + moved], 1)], -1)
+
+
+def rollout_loss(
+    model: torch.nn.Module, b: dict[str, torch.Tensor], steps: int, dt: float, **sharpen: Any
+) -> torch.Tensor:
+    """Mean point loss over an N-step rollout, each prediction fed back as the next input.
+
+    Every step's targets are where the *observed* points end up (the associations are those
+    of the first frame), so the loss follows the same points the planner's pose fit follows.
+    """
+    u = planner_controls(b["u"][:, :steps], dt)
+    x, total = b["points"], 0.0
+    for h in range(steps):
+        x = model(x, u[:, h], b["valid"], **sharpen).points
+        total = total + point_loss(x, b["target"][:, h], b["target_valid"][:, h], b["points"])
+    return total / steps
 
 
 def learning_rate(cfg: TrainConfig, it: int) -> float:
@@ -92,26 +126,47 @@ def fit_normalisation(
 
 @torch.no_grad()
 def validate(
-    model: torch.nn.Module, ds: PushDataset, indices: np.ndarray, batch: int, device: str
+    model: torch.nn.Module,
+    ds: PushDataset,
+    indices: np.ndarray,
+    batch: int,
+    device: str,
+    rollout_steps: int = 1,
 ) -> dict[str, float]:
-    """Loss and flow MSE (one step) on fixed validation examples."""
+    """Loss and flow MSE (one step) on fixed validation examples, and the rollout loss."""
     model.eval()
-    stats, loss_sum, n = FlowStats(), 0.0, 0
+    dt = ds.scenario.action.dt_control_s
+    stats, loss_sum, rollout_sum, n = FlowStats(), 0.0, 0.0, 0
     for s in range(0, len(indices), batch):
         b = {k: v.to(device) for k, v in ds.batch(indices[s : s + batch]).items()}
         pred = model(b["points"], b["u"][:, 0], b["valid"]).points
         loss_sum += float(
             point_loss(pred, b["target"][:, 0], b["target_valid"][:, 0], b["points"])
         ) * len(pred)
+        rollout_sum += float(rollout_loss(model, b, rollout_steps, dt)) * len(pred)
         n += len(pred)
         stats.add(pred, b["points"], b["target"][:, 0], b["target_valid"][:, 0])
     model.train()
     return {
         "val_loss": loss_sum / n,
+        "val_rollout_loss": rollout_sum / n,
         "val_flow_mse_cm2": stats.mse_cm2,
         "val_no_motion_cm2": stats.no_motion_cm2,
         "val_ratio": stats.ratio,
     }
+
+
+def init_weights(cfg: TrainConfig, mcfg: ModelConfig, ds: PushDataset) -> dict[str, Any]:
+    """The weights of ``cfg.init``, refused unless it is the same network for the same data
+    setup (variant, masks, camera, controls)."""
+    from se3net.checkpoint import CheckpointError, load_checkpoint
+
+    net, blob = load_checkpoint(cfg.init, scenario=ds.scenario)
+    if blob["model"] != mcfg.to_dict():
+        diffs = differences(blob["model"], mcfg.to_dict(), old_has="--init has",
+                            new_has="this run has")  # fmt: skip
+        raise CheckpointError(f"--init {cfg.init} is another network: {'; '.join(diffs)}")
+    return net.state_dict()
 
 
 def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> dict[str, Any]:
@@ -132,8 +187,10 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
     if resume and not last.exists():
         raise FileNotFoundError(f"nothing to resume: {last} does not exist")
     torch.manual_seed(cfg.seed)
-    ds = PushDataset(cfg.data, split="train", horizon=cfg.horizon)
-    val = PushDataset(cfg.data, split="val", horizon=cfg.horizon)
+    horizon = max(cfg.horizon, cfg.rollout_steps)
+    ds = PushDataset(cfg.data, split="train", horizon=horizon)
+    val = PushDataset(cfg.data, split="val", horizon=horizon)
+    dt = ds.scenario.action.dt_control_s
     data_hash = manifest_hash(ds.manifest)
     cam = ds.scenario.camera
     mcfg = ModelConfig(
@@ -144,6 +201,8 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
         control_dim=len(ds.control_layout),
     )
     model = build_model(mcfg).to(cfg.device)
+    if cfg.init is not None:
+        model.load_state_dict(init_weights(cfg, mcfg, ds))
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     rng = np.random.default_rng(cfg.seed)
     gen = torch.Generator(device=cfg.device).manual_seed(cfg.seed)
@@ -172,7 +231,8 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
         log.write_text("".join(ln + "\n" for ln in lines))
     else:
         out.mkdir(parents=True, exist_ok=True)
-        fit_normalisation(model, ds, rng)
+        if cfg.init is None:
+            fit_normalisation(model, ds, rng)
         (out / "metrics.jsonl").write_text("")
     val_idx = np.linspace(0, len(val) - 1, min(cfg.val_examples, len(val))).round().astype(int)
     model.train()
@@ -205,14 +265,13 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
     for it in range(start, cfg.iters):
         for group in opt.param_groups:
             group["lr"] = learning_rate(cfg, it)
-        sigma, gamma = sharpening(it, cfg.iters, mcfg)
+        # a fine-tuned model keeps the sharpening it ended with (its masks are already binary)
+        sigma, gamma = sharpening(cfg.iters if cfg.init else it, cfg.iters, mcfg)
         b = {
             k: v.to(cfg.device) for k, v in ds.batch(rng.integers(len(ds), size=cfg.batch)).items()
         }
-        pred = model(
-            b["points"], b["u"][:, 0], b["valid"], sigma=sigma, gamma=gamma, generator=gen
-        ).points
-        loss = point_loss(pred, b["target"][:, 0], b["target_valid"][:, 0], b["points"])
+        sharpen = {"sigma": sigma, "gamma": gamma, "generator": gen}
+        loss = rollout_loss(model, b, cfg.rollout_steps, dt, **sharpen)
         if not torch.isfinite(loss):
             raise TrainingDiverged(
                 f"loss became {float(loss.detach())} at step {it + 1}; {last} keeps the last "
@@ -232,7 +291,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
             figures = {
                 "iteration": done,
                 "train_loss": running / n_running,
-                **validate(model, val, val_idx, cfg.batch, cfg.device),
+                **validate(model, val, val_idx, cfg.batch, cfg.device, cfg.rollout_steps),
                 "sigma": sigma,
                 "gamma": gamma,
                 "lr": learning_rate(cfg, it),
@@ -241,8 +300,9 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
             running, n_running = 0.0, 0
             with open(out / "metrics.jsonl", "a") as f:
                 f.write(json.dumps(figures) + "\n")
-            if figures["val_flow_mse_cm2"] < best:
-                best = figures["val_flow_mse_cm2"]
+            score = figures["val_rollout_loss" if cfg.rollout_steps > 1 else "val_flow_mse_cm2"]
+            if score < best:
+                best = score
                 checkpoint(out / "best.pt", done, figures, with_state=False)
             checkpoint(last, done, figures, with_state=True)
             if cfg.keep_every and done % cfg.keep_every == 0:

@@ -80,6 +80,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         data=args.data, out=args.out, variant=args.variant, iters=args.iters, batch=args.batch,
         lr=args.lr, horizon=args.horizon, seed=args.seed, device=args.device, k=args.k,
         eval_every=args.eval_every, keep_every=args.keep_every,
+        rollout_steps=args.rollout_steps, init=args.init,
     )  # fmt: skip
     try:
         figures = train(cfg, resume=args.resume)
@@ -197,6 +198,13 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--k", type=int, default=4, help="number of masks (SE3-Net variants)")
     s.add_argument("--eval-every", type=int, default=250, help="iterations between validations")
     s.add_argument("--keep-every", type=int, default=0, help="keep a checkpoint every N iterations")
+    s.add_argument(
+        "--rollout-steps",
+        type=int,
+        default=1,
+        help="train on N-step rollouts with predictions fed back, as the planner rolls the model",
+    )
+    s.add_argument("--init", default=None, help="start from this checkpoint's weights (fine-tune)")
     s.add_argument("--resume", action="store_true", help="continue the run in --out exactly")
     s.set_defaults(run=_cmd_train)
 

@@ -154,3 +154,57 @@ def test_eval_writes_the_table_json_and_pictures(tiny_data, tmp_path):
     # a model that has barely trained is close to no motion
     assert 0.5 < results[1].ratio_to_no_motion < 1.5
     assert (tmp_path / "eval" / "se3_examples.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_rollout_training_follows_the_planner_and_lowers_the_rollout_loss(tiny_data, tmp_path):
+    from planner.dynamics import LearnedDynamics, PlanState
+    from se3net.train import rollout_loss
+
+    torch.manual_seed(0)
+    ds = PushDataset(tiny_data, split="train", horizon=3)
+    dt = ds.scenario.action.dt_control_s
+    model = build_model(ModelConfig(height=32, width=32, k=3))
+    fit_normalisation(model, ds, np.random.default_rng(0), n=64)
+    moving = [
+        i
+        for i in range(len(ds))
+        if (ds[i]["target"][-1] - ds[i]["points"]).norm(dim=0)[ds[i]["part"] >= 2].max() > 2e-3
+    ]
+    b = ds.batch(moving[:4] + list(range(4)))
+    # the training rollout is the planner's rollout: same clouds, step by step
+    model.eval()
+    dyn = LearnedDynamics(model, ds.scenario, name="se3net")
+    state = PlanState(b["points"][0], b["valid"][0], b["part"][0] == 2, torch.zeros(3),
+                      b["u"][0, 0, 2:], None)  # fmt: skip
+    planned = dyn.rollout(state, b["u"][:1, :, :2], clouds=True).clouds[0]
+    x = b["points"][:1]
+    from se3net.train import planner_controls
+
+    u = planner_controls(b["u"][:1], dt)
+    for h in range(3):
+        x = model(x, u[:, h], b["valid"][:1]).points
+        assert torch.allclose(x[0], planned[h], atol=1e-6)
+    model.train()
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    first = float(rollout_loss(model, b, 3, dt).detach())
+    for _ in range(100):
+        opt.zero_grad()
+        rollout_loss(model, b, 3, dt).backward()
+        opt.step()
+    assert float(rollout_loss(model, b, 3, dt).detach()) < 0.5 * first
+
+
+def test_fine_tuning_with_rollouts_starts_from_the_checkpoint(tiny_data, tmp_path):
+    train(_cfg(tiny_data, tmp_path / "one", iters=4), progress=False)
+    init = str(tmp_path / "one" / "last.pt")
+    figures = train(_cfg(tiny_data, tmp_path / "multi", iters=2, rollout_steps=3, init=init),
+                    progress=False)  # fmt: skip
+    assert figures["val_rollout_loss"] > 0
+    # with a zero learning rate the weights (not BN's running statistics) stay those of --init
+    train(_cfg(tiny_data, tmp_path / "frozen", iters=1, lr=1e-12, rollout_steps=2, init=init),
+          progress=False)  # fmt: skip
+    a, b = read_checkpoint(init)["state_dict"], read_checkpoint(tmp_path / "frozen" / "last.pt")
+    assert all(torch.allclose(a[k].float(), b["state_dict"][k].float(), atol=1e-6) for k in a
+               if "running_" not in k and not k.endswith("num_batches_tracked"))  # fmt: skip
+    with pytest.raises(CheckpointError, match="another network"):
+        train(_cfg(tiny_data, tmp_path / "bad", iters=1, k=4, init=init), progress=False)
