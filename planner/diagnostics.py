@@ -31,6 +31,8 @@ MISSED_M = 1e-3
 MIN_PROGRESS_M = 1e-3
 """below this much actual progress the ratio is undefined (None)"""
 
+STEP_FIGURES = ("predicted_disp_m", "actual_disp_m", "predicted_progress_m", "actual_progress_m")
+"""what :func:`step_figures` gives for each executed step"""
 COUNT_KEYS = ("still_steps", "phantom_steps", "moved_steps", "missed_steps")
 SUM_KEYS = ("predicted_progress_m", "actual_progress_m")
 

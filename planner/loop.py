@@ -13,7 +13,7 @@ import torch
 
 from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
 from planner.cost import yaw_period
-from planner.diagnostics import exploitation, step_figures
+from planner.diagnostics import STEP_FIGURES, exploitation, step_figures
 from planner.viz import MeshcatVisualiser, NullVisualiser
 from scenarios import Scenario, load_scenario
 from sim import PushWorld
@@ -88,8 +88,11 @@ class PushResult:
     records: list[StepRecord] = field(default_factory=list)
 
     def summary(self) -> dict:
-        """The result line's fields (no per-step records)."""
-        return {k: v for k, v in asdict(self).items() if k != "records"}
+        """The result line's fields, with each step's predicted and actual motion (not the
+        full per-step records)."""
+        keys = ("step", *STEP_FIGURES)
+        per_step = [{k: getattr(r, k) for k in keys} for r in self.records]
+        return {**{k: v for k, v in asdict(self).items() if k != "records"}, "per_step": per_step}
 
 
 def pose_errors(pose: np.ndarray, goal: np.ndarray, period: float | None) -> tuple[float, float]:

@@ -26,6 +26,12 @@ def test_closed_loop_with_the_oracle_reaches_a_nearby_goal():
     assert result.final_pos_err_m <= 0.02 and len(steps) == result.steps
     assert steps[-1].pos_err_m < steps[0].pos_err_m
     assert len(steps[0].predicted_poses) == 4
+    # the oracle is the simulator: what it predicts for each executed action happens
+    d = result.diagnostics
+    assert d["moved_steps"] > 0 and d["phantom_steps"] == 0 and d["missed_steps"] == 0
+    assert 0.8 <= d["progress_ratio"] <= 1.25
+    for s in steps:
+        assert abs(s.predicted_disp_m - s.actual_disp_m) < 2e-3
 
 
 def test_pose_errors_respect_symmetry():
@@ -64,6 +70,9 @@ def test_plan_push_json_and_exit_codes(capsys):
     ):
         assert key in line
     assert line["success_tight"] is True
+    assert len(line["per_step"]) == line["steps"]
+    moved = sum(s["actual_disp_m"] > 3e-3 for s in line["per_step"])
+    assert line["diagnostics"]["moved_steps"] == moved
     # a step budget too small to get there: failure, exit code 1
     assert plan_push_main([*args[:-1], "1"]) == 1
     assert "FAILURE" in capsys.readouterr().out
