@@ -16,7 +16,7 @@ from planner.cost import yaw_period
 from planner.diagnostics import STEP_FIGURES, exploitation, step_figures
 from planner.viz import MeshcatVisualiser, NullVisualiser
 from scenarios import Scenario, load_scenario
-from sim import PushWorld
+from sim import Observation, PushWorld
 
 TIGHT = (0.02, 10.0)
 """success: position within 2 cm and yaw within 10 degrees"""
@@ -45,6 +45,13 @@ class PushConfig:
     """control steps before giving up"""
     device: str = "cpu"
     """device of a learned model"""
+    action_noise: float = 0.0
+    """SD of Gaussian noise added to each executed action, as a fraction of the action bound
+    (exploration when collecting planner-visited data; 0 = the plan's action as it is)"""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.action_noise <= 1.0:
+            raise ValueError(f"action noise must be in [0, 1], got {self.action_noise}")
 
 
 @dataclass
@@ -122,8 +129,12 @@ def run_push(
     *,
     on_step: Callable[[StepRecord], None] | None = None,
     viz: NullVisualiser | MeshcatVisualiser | None = None,
+    on_transition: Callable[[PushWorld, Observation, np.ndarray | None], None] | None = None,
 ) -> PushResult:
     """Reset the world with ``cfg.seed`` and push object ``cfg.object_index`` to the goal.
+
+    ``on_transition(world, obs, action)`` sees the first observation (action None) and then
+    every executed action with the observation it led to (to record planner-visited data).
 
     Raises:
         ValueError: a bad goal, object index, planner or model name.
@@ -159,8 +170,12 @@ def run_push(
         pos_err, yaw_err = errors()
         return pos_err <= TIGHT[0] and yaw_err <= TIGHT[1]
 
+    noise = np.random.default_rng([cfg.seed, 11])
+    bound = scenario.action.max_speed_m_s
     records: list[StepRecord] = []
     reason = "budget"
+    if on_transition is not None:
+        on_transition(world, obs, None)
     viz = viz or NullVisualiser()
     viz.start(world, obs, goal, object_index=cfg.object_index, horizon=planner.cfg.horizon,
               model=getattr(dynamics, "model", None))  # fmt: skip
@@ -170,7 +185,12 @@ def run_push(
                 break
             before = obs.object_poses[cfg.object_index].copy()
             action, info = planner.plan(plan_state(obs, world, cfg.object_index))
+            if cfg.action_noise > 0:
+                action = np.clip(action + cfg.action_noise * bound * noise.standard_normal(2),
+                                 -bound, bound)  # fmt: skip
             obs = world.step(action)
+            if on_transition is not None:
+                on_transition(world, obs, action)
             viz.step(obs, info)
             pose = obs.object_poses[cfg.object_index]
             figures = step_figures(before, info.predicted_poses[0], pose, goal)

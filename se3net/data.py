@@ -7,6 +7,7 @@ in the paper's robustness study, is optional and off by default.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +29,9 @@ class PushDataset(Dataset):
     """Examples ``(cloud at t, controls t..t+h-1) -> targets at t+1..t+h``.
 
     Args:
-        root: dataset folder.
+        root: dataset folder, or several (say exploration data and planner-visited data from
+            ``se3push improve``): their episodes are pooled; they must share the scenario
+            and the episode length.
         split: ``"train"``, ``"val"`` or ``"test"``.
         horizon: h, the number of steps to predict (targets for every step 1..h).
         noise: depth and association noise (the scenario's ``NoiseConfig`` shape); None = off.
@@ -49,7 +52,7 @@ class PushDataset(Dataset):
 
     def __init__(
         self,
-        root: str | Path,
+        root: str | Path | Sequence[str | Path],
         *,
         split: str = "train",
         horizon: int = 1,
@@ -57,7 +60,18 @@ class PushDataset(Dataset):
         seed: int = 0,
         verify: bool = True,
     ):
-        self.manifest = read_manifest(root)
+        roots = [root] if isinstance(root, str | Path) else list(root)
+        if not roots:
+            raise DataError("no dataset folder given")
+        self.manifests = [read_manifest(r) for r in roots]
+        self.manifest = self.manifests[0]
+        for r, m in zip(roots[1:], self.manifests[1:], strict=True):
+            for key in ("scenario", "steps_per_episode", "control_layout"):
+                if m["identity"][key] != self.manifest["identity"][key]:
+                    raise DataError(
+                        f"{r} and {roots[0]} differ in {key}; only datasets of one scenario "
+                        "and episode length can be pooled"
+                    )
         steps = self.manifest["identity"]["steps_per_episode"]
         if not 1 <= horizon <= steps:
             raise DataError(
@@ -68,8 +82,9 @@ class PushDataset(Dataset):
         self.camera = DepthCamera(self.scenario.camera)
         self._T_cam_world = self.camera.T_cam_world
         self.horizon, self.noise, self.seed, self.epoch = horizon, noise, seed, 0
-        eps = load_episodes(root, split, verify=verify)
-        self.a, self.episode_index = eps.arrays, eps.index
+        parts = [load_episodes(r, split, verify=verify) for r in roots]
+        self.a = {k: np.concatenate([p.arrays[k] for p in parts]) for k in parts[0].arrays}
+        self.episode_index = np.concatenate([p.index for p in parts])
         lengths = self.a["length"].astype(int)
         self.items = np.array(
             [(e, t) for e in range(len(lengths)) for t in range(lengths[e] - horizon + 1)],

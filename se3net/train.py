@@ -39,8 +39,8 @@ class TrainingDiverged(RuntimeError):
 class TrainConfig:
     """One training run."""
 
-    data: str
-    """dataset folder"""
+    data: str | tuple[str, ...]
+    """dataset folder, or several pooled (exploration plus planner-visited data)"""
     out: str
     """run folder"""
     variant: str = "se3net"
@@ -191,7 +191,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
     ds = PushDataset(cfg.data, split="train", horizon=horizon)
     val = PushDataset(cfg.data, split="val", horizon=horizon)
     dt = ds.scenario.action.dt_control_s
-    data_hash = manifest_hash(ds.manifest)
+    data_hash = "+".join(manifest_hash(m) for m in ds.manifests)
     cam = ds.scenario.camera
     mcfg = ModelConfig(
         variant=cfg.variant,

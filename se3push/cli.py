@@ -76,8 +76,9 @@ def _cmd_data(args: argparse.Namespace) -> int:
 def _cmd_train(args: argparse.Namespace) -> int:
     from se3net.train import TrainConfig, TrainingDiverged, train
 
+    data = args.data[0] if len(args.data) == 1 else tuple(args.data)
     cfg = TrainConfig(
-        data=args.data, out=args.out, variant=args.variant, iters=args.iters, batch=args.batch,
+        data=data, out=args.out, variant=args.variant, iters=args.iters, batch=args.batch,
         lr=args.lr, horizon=args.horizon, seed=args.seed, device=args.device, k=args.k,
         eval_every=args.eval_every, keep_every=args.keep_every,
         rollout_steps=args.rollout_steps, init=args.init,
@@ -150,6 +151,22 @@ def _cmd_study(args: argparse.Namespace) -> int:
     return 0 if result["rows"] else 1
 
 
+def _cmd_improve(args: argparse.Namespace) -> int:
+    from planner.improve import ImproveConfig, run_improve
+
+    cfg = ImproveConfig(
+        scenario=args.scenario, model=args.model, data=args.data, rounds=args.rounds,
+        trials_per_round=args.trials_per_round, heldout=args.heldout, seed=args.seed,
+        action_noise=args.action_noise, finetune_iters=args.finetune_iters,
+        rollout_steps=args.rollout_steps, lr=args.lr, planner=args.planner,
+        max_steps=args.max_steps,
+    )  # fmt: skip
+    run_improve(cfg, args.out, workers=args.workers)
+    print((Path(args.out) / "improve.md").read_text())
+    print(f"wrote {args.out}/improve.md, improve.json, improve.png and round_*/")
+    return 0
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     from se3push.bench import run_bench
 
@@ -184,7 +201,12 @@ def _parser() -> argparse.ArgumentParser:
     s.set_defaults(run=_cmd_data)
 
     s = sub.add_parser("train", help="train an SE3-Net or a baseline on a dataset")
-    s.add_argument("--data", required=True, help="dataset folder (from `se3push data`)")
+    s.add_argument(
+        "--data",
+        required=True,
+        nargs="+",
+        help="dataset folder(s) (from `se3push data` or `se3push improve`), pooled",
+    )
     s.add_argument(
         "--variant", default="se3net", help="se3net, se3net-large, no-penalty, flow, flow-large"
     )
@@ -247,6 +269,29 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="folder for study.md/.json/.png and trials/")
     s.add_argument("--workers", type=int, default=1, help="processes for the trials")
     s.set_defaults(run=_cmd_study)
+
+    s = sub.add_parser("improve", help="rounds of planner-visited data and fine-tuning")
+    s.add_argument("--scenario", default="single_box", help="scenario name or TOML path")
+    s.add_argument("--model", required=True, help="starting checkpoint ('default': shipped)")
+    s.add_argument("--data", required=True, help="the exploration data the model was trained on")
+    s.add_argument("--rounds", type=int, default=3)
+    s.add_argument("--trials-per-round", type=int, default=20, help="pushes recorded per round")
+    s.add_argument("--heldout", type=int, default=50, help="held-out trials measuring each round")
+    s.add_argument("--seed", type=int, default=0, help="seed of the held-out trial set")
+    s.add_argument(
+        "--action-noise",
+        type=float,
+        default=0.1,
+        help="SD of the noise on executed actions while collecting (x bound)",
+    )
+    s.add_argument("--finetune-iters", type=int, default=1000)
+    s.add_argument("--rollout-steps", type=int, default=1, help="rollout steps of the loss")
+    s.add_argument("--lr", type=float, default=3e-4)
+    s.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
+    s.add_argument("--max-steps", type=int, default=60, help="control steps per push")
+    s.add_argument("--out", required=True, help="folder of the rounds (resumable)")
+    s.add_argument("--workers", type=int, default=1, help="processes for the trials")
+    s.set_defaults(run=_cmd_improve)
 
     s = sub.add_parser("bench", help="time the hot paths (medians over repeats)")
     s.add_argument("what", choices=["world", "data", "model", "planner"], help="which benchmark")

@@ -93,6 +93,72 @@ def identity(cfg: DataConfig, scenario: Scenario) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------- episodes
+PLANNER_MODE = "planner"
+"""the mode of steps recorded from closed-loop planning (``se3push improve``)"""
+STEP_MODES = (*MODES, PLANNER_MODE)
+"""every mode a recorded step can have (``modes`` holds indices into this)"""
+
+
+class EpisodeRecorder:
+    """Fills one episode's arrays frame by frame, from observations of a world.
+
+    The same record serves exploration episodes and closed-loop (planner-visited) ones, so
+    both have the same format and the same exact associations.
+    """
+
+    def __init__(self, world: PushWorld, steps: int, obs) -> None:
+        T, (H, W), n_obj = steps, obs.part.shape, len(world.objects)
+        self.n_obj, self.length = n_obj, 0
+        self.out = {
+            "part": np.full((T + 1, H, W), -1, np.int8),
+            "points_part": np.zeros((T + 1, 3, H, W), np.float16),
+            "T_world_part": np.tile(np.eye(4), (T + 1, MAX_PARTS, 1, 1)),
+            "object_poses": np.zeros((T + 1, MAX_PARTS - 2, 3)),
+            "pusher_xy": np.zeros((T + 1, 2)),
+            "joint_pos": np.zeros((T + 1, 4), np.float32),
+            "joint_vel": np.zeros((T + 1, 4), np.float32),
+            "actions": np.zeros((T, 2)),
+            "modes": np.full(T, -1, np.int8),
+            "n_objects": np.array(n_obj, np.int8),
+            "object_shape": np.array(
+                [SHAPES.index(o.shape) for o in world.objects] + [-1] * (3 - n_obj), np.int8
+            ),
+            "object_size": np.array([o.size_m for o in world.objects] + [(0, 0, 0)] * (3 - n_obj)),
+            "object_mass": np.array([o.mass_kg for o in world.objects] + [0] * (3 - n_obj), float),
+            "object_friction": np.array(
+                [o.friction for o in world.objects] + [0] * (3 - n_obj), float
+            ),
+        }
+        self._frame(0, obs)
+
+    def _frame(self, t: int, o) -> None:
+        out = self.out
+        out["part"][t] = o.part
+        out["points_part"][t] = o.points_part
+        out["T_world_part"][t, : len(o.T_world_part)] = o.T_world_part
+        out["object_poses"][t, : self.n_obj] = o.object_poses
+        out["pusher_xy"][t] = o.pusher_xy_m
+        out["joint_pos"][t] = o.joint_pos_rad
+        out["joint_vel"][t] = o.joint_vel_rad_s
+
+    @property
+    def full(self) -> bool:
+        return self.length == len(self.out["actions"])
+
+    def step(self, action: np.ndarray, mode: str, obs) -> None:
+        """Record an action taken in the last recorded frame and the frame it led to."""
+        t = self.length
+        self.out["actions"][t], self.out["modes"][t] = action, STEP_MODES.index(mode)
+        self._frame(t + 1, obs)
+        self.length = t + 1
+
+    def finish(self, qp_failures: int = 0) -> dict[str, np.ndarray]:
+        """The episode's arrays (frames after ``length`` are padding)."""
+        self.out["length"] = np.array(self.length, np.int32)
+        self.out["qp_failures"] = np.array(qp_failures, np.int32)
+        return self.out
+
+
 def run_episode(scenario: Scenario, cfg: DataConfig, index: int) -> dict[str, np.ndarray]:
     """Simulate episode ``index`` (a function of ``(cfg.seed, index)`` alone).
 
@@ -101,55 +167,19 @@ def run_episode(scenario: Scenario, cfg: DataConfig, index: int) -> dict[str, np
     steps are real. The frame at which the episode ended is dropped, as the paper discards
     such frames.
     """
-    T = cfg.steps_per_episode
     rng = np.random.default_rng([cfg.seed, index])
     world = PushWorld(scenario)
     obs = world.reset(rng)
     policy = ExplorationPolicy(scenario, world.objects, rng, cfg.exploration)
     obs = world.teleport_pusher(policy.start_position(obs))
-    H, W = obs.part.shape
-    n_obj = len(world.objects)
-    out = {
-        "part": np.full((T + 1, H, W), -1, np.int8),
-        "points_part": np.zeros((T + 1, 3, H, W), np.float16),
-        "T_world_part": np.tile(np.eye(4), (T + 1, MAX_PARTS, 1, 1)),
-        "object_poses": np.zeros((T + 1, MAX_PARTS - 2, 3)),
-        "pusher_xy": np.zeros((T + 1, 2)),
-        "joint_pos": np.zeros((T + 1, 4), np.float32),
-        "joint_vel": np.zeros((T + 1, 4), np.float32),
-        "actions": np.zeros((T, 2)),
-        "modes": np.full(T, -1, np.int8),
-        "n_objects": np.array(n_obj, np.int8),
-        "object_shape": np.array(
-            [SHAPES.index(o.shape) for o in world.objects] + [-1] * (3 - n_obj), np.int8
-        ),
-        "object_size": np.array([o.size_m for o in world.objects] + [(0, 0, 0)] * (3 - n_obj)),
-        "object_mass": np.array([o.mass_kg for o in world.objects] + [0] * (3 - n_obj), float),
-        "object_friction": np.array([o.friction for o in world.objects] + [0] * (3 - n_obj), float),
-    }
-
-    def record(t: int, o) -> None:
-        out["part"][t] = o.part
-        out["points_part"][t] = o.points_part
-        out["T_world_part"][t, : len(o.T_world_part)] = o.T_world_part
-        out["object_poses"][t, :n_obj] = o.object_poses
-        out["pusher_xy"][t] = o.pusher_xy_m
-        out["joint_pos"][t] = o.joint_pos_rad
-        out["joint_vel"][t] = o.joint_vel_rad_s
-
-    record(0, obs)
-    length = 0
-    for t in range(T):
+    rec = EpisodeRecorder(world, cfg.steps_per_episode, obs)
+    for _ in range(cfg.steps_per_episode):
         action, mode = policy(obs)
         obs = world.step(action)
         if obs.done:
             break
-        out["actions"][t], out["modes"][t] = action, MODES.index(mode)
-        record(t + 1, obs)
-        length = t + 1
-    out["length"] = np.array(length, np.int32)
-    out["qp_failures"] = np.array(world.qp_failures, np.int32)
-    return out
+        rec.step(action, mode, obs)
+    return rec.finish(world.qp_failures)
 
 
 def episode_stats(ep: dict[str, np.ndarray], T_cam_world: np.ndarray) -> dict[str, Any]:
@@ -173,7 +203,7 @@ def episode_stats(ep: dict[str, np.ndarray], T_cam_world: np.ndarray) -> dict[st
         hist += np.bincount(
             np.minimum((fm / HIST_BIN_M).astype(int), HIST_BINS), minlength=HIST_BINS + 1
         )
-    steps = np.bincount(ep["modes"][:length].astype(int), minlength=len(MODES))
+    steps = np.bincount(ep["modes"][:length].astype(int), minlength=len(STEP_MODES))
     return {
         "examples": length,
         "moved_examples": moved,
@@ -181,7 +211,7 @@ def episode_stats(ep: dict[str, np.ndarray], T_cam_world: np.ndarray) -> dict[st
         "flow_sum_m": sum_f,
         "flow_sq_sum_m2": sum_f2,
         "flow_hist": hist.tolist(),
-        "mode_steps": dict(zip(MODES, steps.tolist(), strict=True)),
+        "mode_steps": dict(zip(STEP_MODES, steps.tolist(), strict=True)),
         "qp_failures": int(ep["qp_failures"]),
     }
 

@@ -171,3 +171,12 @@ def test_bad_reads_are_refused_with_what_to_do(root, tmp_path):
         PushDataset(copy)
     with pytest.raises(DataError, match=r"shard_00001\.npz cannot be read"):
         PushDataset(copy, verify=False)
+
+
+def test_pooled_datasets_must_share_scenario_and_episode_length(tiny_data, tmp_path):
+    other = tmp_path / "short"
+    generate(DataConfig("tiny", episodes=2, steps_per_episode=4), other, progress=False)
+    with pytest.raises(DataError, match="differ in steps_per_episode"):
+        PushDataset([tiny_data, other])
+    twice = PushDataset([tiny_data, tiny_data], split="train")
+    assert len(twice) == 2 * len(PushDataset(tiny_data, split="train"))

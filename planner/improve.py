@@ -1,0 +1,290 @@
+"""Planner-visited data (data aggregation, as model-based RL does): ``se3push improve``.
+
+Each round runs closed-loop pushes with the current model, with some exploration noise on the
+executed actions, records every executed step as training episodes in the dataset format (the
+same exact associations as exploration data: they are the world's own observations), pools
+them with all data so far, fine-tunes the model on the pool, and measures it on a fixed
+held-out trial set that no round ever trains on.
+
+Layout of ``out``::
+
+    config.json              the run's settings (a rerun must match them)
+    round_0/heldout/         trials of the starting model on the held-out set
+    round_R/data/            the round's planner-visited episodes (a dataset folder)
+    round_R/model/           the fine-tuning run (best.pt is the round's model)
+    round_R/heldout/         trials of that model on the held-out set
+    improve.json, improve.md, improve.png
+
+Every step of a round is kept when done (complete dataset, training checkpoints, trial
+lines), so an interrupted run started again continues where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planner.loop import PushConfig, run_push
+from planner.trials import TrialsConfig, draw_trial, run_trials
+from scenarios import load_scenario
+from sim.dataset import (
+    CONTROL_LAYOUT,
+    DATA_FORMAT,
+    MANIFEST,
+    PLANNER_MODE,
+    EpisodeRecorder,
+    differences,
+    episode_stats,
+    merge_stats,
+)
+from sim.shards import atomic_write_bytes, atomic_write_json, write_shard
+
+COLLECT_STREAM = 1_000_003
+"""collection trials of round r are drawn from seed ``seed * COLLECT_STREAM + r``: a trial
+stream apart from the held-out set's (seed ``seed``)"""
+
+
+@dataclass(frozen=True)
+class ImproveConfig:
+    """Rounds of planner-visited data collection and fine-tuning."""
+
+    scenario: str
+    """scenario name or TOML path"""
+    model: str
+    """the starting checkpoint (round 0)"""
+    data: str
+    """the exploration dataset the starting model was trained on (pooled in every round)"""
+    rounds: int = 3
+    trials_per_round: int = 20
+    """closed-loop pushes recorded per round"""
+    heldout: int = 50
+    """held-out trials (never trained on) on which every round is measured"""
+    seed: int = 0
+    """seed of the held-out trial set; the collection trials come from other streams"""
+    action_noise: float = 0.1
+    """SD of the noise on executed actions while collecting, as a fraction of the bound"""
+    finetune_iters: int = 1000
+    rollout_steps: int = 1
+    """rollout steps of the fine-tuning loss (``se3push train --rollout-steps``)"""
+    lr: float = 3e-4
+    batch: int = 32
+    eval_every: int = 250
+    planner: str = "cem"
+    max_steps: int = 60
+
+    def __post_init__(self) -> None:
+        for name in ("rounds", "trials_per_round", "heldout", "finetune_iters", "max_steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(
+                    f"--{name.replace('_', '-')} must be positive, got {getattr(self, name)}"
+                )
+
+    def collect_seed(self, r: int) -> int:
+        return self.seed * COLLECT_STREAM + r
+
+
+def record_trial(cfg: ImproveConfig, model: str, r: int, i: int, steps_per_episode: int) -> dict:
+    """Collection trial i of round r: push with ``model`` and noisy actions; returns the
+    executed steps cut into episodes of ``steps_per_episode`` and the trial's reset seed."""
+    trial = draw_trial(load_scenario(cfg.scenario), cfg.collect_seed(r), i)
+    episodes: list[dict[str, np.ndarray]] = []
+    current: dict[str, Any] = {}
+
+    def on_transition(world, obs, action) -> None:
+        if action is None:
+            current.update(world=world, rec=EpisodeRecorder(world, steps_per_episode, obs))
+            return
+        if obs.done:  # the frame where the episode ended is dropped, as exploration data does
+            return
+        rec = current["rec"]
+        rec.step(action, PLANNER_MODE, obs)
+        if rec.full:
+            episodes.append(rec.finish(world.qp_failures))
+            current["rec"] = EpisodeRecorder(world, steps_per_episode, obs)
+
+    push = PushConfig(
+        goal=tuple(trial["goal"]), scenario=cfg.scenario, model=model, planner=cfg.planner,
+        seed=trial["reset_seed"], max_steps=cfg.max_steps, action_noise=cfg.action_noise,
+    )  # fmt: skip
+    result = run_push(push, on_transition=on_transition)
+    if current["rec"].length > 0:
+        episodes.append(current["rec"].finish(current["world"].qp_failures))
+    return {"reset_seed": trial["reset_seed"], "episodes": episodes, **result.summary()}
+
+
+def collect(cfg: ImproveConfig, model: str, r: int, out: Path, *, workers: int) -> dict:
+    """Record round r's closed-loop pushes as a dataset folder ``out``; returns its manifest."""
+    from tqdm import tqdm
+
+    from sim.datastore import read_manifest
+    from sim.world import PushWorld
+
+    if (out / MANIFEST).exists():
+        manifest = json.loads((out / MANIFEST).read_text())
+        if manifest.get("complete"):
+            return manifest
+    base = read_manifest(cfg.data)["identity"]
+    T = base["steps_per_episode"]
+    heldout = {draw_trial(load_scenario(cfg.scenario), cfg.seed, i)["reset_seed"]
+               for i in range(cfg.heldout)}  # fmt: skip
+    args = [(cfg, model, r, i, T) for i in range(cfg.trials_per_round)]
+    bar = tqdm(total=len(args), unit="trial", desc=f"round {r}: collect")
+    if workers == 1:
+        trials = []
+        for a in args:
+            trials.append(record_trial(*a))
+            bar.update(1)
+    else:
+        ctx = multiprocessing.get_context("fork")
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            futures = [pool.submit(record_trial, *a) for a in args]
+            trials = []
+            for f in futures:  # in order: the bytes do not depend on the number of workers
+                trials.append(f.result())
+                bar.update(1)
+    bar.close()
+    leaked = [t["reset_seed"] for t in trials if t["reset_seed"] in heldout]
+    if leaked:
+        raise RuntimeError(f"collection trials {leaked} coincide with held-out trials")
+    episodes = [ep for t in trials for ep in t["episodes"]]
+    if not episodes:
+        raise RuntimeError(f"round {r} recorded no steps; raise --max-steps or --trials-per-round")
+    arrays = {k: np.stack([ep[k] for ep in episodes]) for k in episodes[0]}
+    arrays["episode_index"] = np.arange(len(episodes), dtype=np.int64)
+    out.mkdir(parents=True, exist_ok=True)
+    digest = write_shard(out / "shard_00000.npz", arrays)
+    T_cam_world = PushWorld(load_scenario(cfg.scenario)).camera.T_cam_world
+    stats = merge_stats([episode_stats(ep, T_cam_world) for ep in episodes])
+    stats["episodes"] = len(episodes)
+    identity = {
+        **base,
+        "seed": cfg.collect_seed(r),
+        "episodes": len(episodes),
+        "episodes_per_shard": len(episodes),
+        "exploration": {
+            "modes": [PLANNER_MODE],
+            "model": model,
+            "planner": cfg.planner,
+            "action_noise": cfg.action_noise,
+            "round": r,
+            "trials": cfg.trials_per_round,
+        },
+    }
+    if identity["control_layout"] != list(CONTROL_LAYOUT) or identity["format"] != DATA_FORMAT:
+        raise ValueError(f"{cfg.data} was written by another version of this code; regenerate it")
+    manifest = {
+        "identity": identity,
+        "shards": {"shard_00000.npz": {"sha256": digest, **stats}},
+        "stats": stats,
+        "collection": [
+            {k: v for k, v in t.items() if k not in ("episodes", "per_step")} for t in trials
+        ],  # fmt: skip
+        "complete": True,
+    }
+    atomic_write_json(out / MANIFEST, manifest)
+    return manifest
+
+
+def finetune(cfg: ImproveConfig, init: str, data: list[str], out: Path) -> str:
+    """Fine-tune ``init`` on the pooled ``data`` into ``out``; returns the best checkpoint."""
+    from se3net.checkpoint import read_checkpoint
+    from se3net.train import TrainConfig, train
+
+    net = read_checkpoint(init)["model"]
+    tcfg = TrainConfig(
+        data=tuple(data), out=str(out), variant=net["variant"], k=net["k"],
+        iters=cfg.finetune_iters, batch=cfg.batch, lr=cfg.lr, seed=cfg.seed,
+        eval_every=min(cfg.eval_every, cfg.finetune_iters), rollout_steps=cfg.rollout_steps,
+        init=init,
+    )  # fmt: skip
+    train(tcfg, resume=(out / "last.pt").exists())
+    return str(out / "best.pt")
+
+
+def run_improve(cfg: ImproveConfig, out: str | Path, *, workers: int = 1) -> dict[str, Any]:
+    """Run (or continue) the rounds; returns and writes the per-round table."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = out / "config.json"
+    if meta.exists():
+        old, new = json.loads(meta.read_text()), json.loads(json.dumps(asdict(cfg)))
+        old.pop("rounds"), new.pop("rounds")  # more rounds continue a run
+        if old != new:
+            raise ValueError(
+                f"{out} holds another improve run ({'; '.join(differences(old, new))}); "
+                "use a new --out folder"
+            )
+    atomic_write_json(meta, asdict(cfg))
+
+    def heldout(model: str, r: int) -> dict[str, Any]:
+        tcfg = TrialsConfig(
+            scenario=cfg.scenario, n=cfg.heldout, model=model, planner=cfg.planner,
+            seed=cfg.seed, max_steps=cfg.max_steps,
+        )  # fmt: skip
+        summary = run_trials(tcfg, out / f"round_{r}" / "heldout", workers=workers)
+        return {"round": r, "model": model, **{k: v for k, v in summary.items() if k != "config"}}
+
+    rows = [heldout(cfg.model, 0)]
+    model, data = cfg.model, [cfg.data]
+    for r in range(1, cfg.rounds + 1):
+        manifest = collect(cfg, model, r, out / f"round_{r}" / "data", workers=workers)
+        data.append(str(out / f"round_{r}" / "data"))
+        model = finetune(cfg, model, data, out / f"round_{r}" / "model")
+        rows.append({**heldout(model, r), "new_episodes": manifest["identity"]["episodes"]})
+    result = {"config": asdict(cfg), "rounds": rows}
+    atomic_write_json(out / "improve.json", result)
+    atomic_write_bytes(out / "improve.md", table_markdown(rows).encode())
+    plot_rounds(rows, out / "improve.png")
+    return result
+
+
+def table_markdown(rows: list[dict[str, Any]]) -> str:
+    """Success and diagnostics per round on the held-out trials."""
+    from planner.study import _fmt
+
+    lines = [
+        "| round | new episodes | success 2 cm/10° [95 % CI] | success 5 cm/20° | phantom | "
+        "missed | progress ratio | median steps |",
+        "|---" * 8 + "|",
+    ]
+    for r in rows:
+        d = r["diagnostics"]
+        lo, hi = r["success_tight_ci95"]
+        lines.append(
+            f"| {r['round']} | {r.get('new_episodes', '–')} | {r['success_tight']:.0%} "
+            f"[{lo:.0%}–{hi:.0%}] | {r['success_loose']:.0%} | {_fmt(d['phantom_rate'], '.0%')} "
+            f"| {_fmt(d['missed_rate'], '.0%')} | {_fmt(d['progress_ratio'], '.2f')} | "
+            f"{r['median_steps']:.0f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def plot_rounds(rows: list[dict[str, Any]], out: Path) -> None:
+    """Success (with its interval) and the diagnostics against the round."""
+    from sim.render import _pyplot, save_figure
+
+    plt = _pyplot()
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    x = [r["round"] for r in rows]
+    for key, label in (("success_tight", "2 cm, 10°"), ("success_loose", "5 cm, 20°")):
+        y = np.array([r[key] for r in rows])
+        ci = np.array([r[f"{key}_ci95"] for r in rows])
+        a.errorbar(x, y, yerr=[y - ci[:, 0], ci[:, 1] - y], marker="o", capsize=3, label=label)
+    a.set_xlabel("round")
+    a.set_ylabel("held-out success")
+    a.set_ylim(-0.05, 1.05)
+    a.legend()
+    for key in ("phantom_rate", "missed_rate", "progress_ratio"):
+        y = [r["diagnostics"][key] for r in rows]
+        b.plot(x, [np.nan if v is None else v for v in y], marker="o", label=key)
+    b.axhline(0.05, color="grey", ls=":", lw=0.8)
+    b.set_xlabel("round")
+    b.legend()
+    fig.suptitle("planner-visited data: held-out trials per round")
+    save_figure(fig, out)
