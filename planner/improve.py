@@ -85,6 +85,9 @@ class ImproveConfig:
                     f"--{name.replace('_', '-')} must be positive, got {getattr(self, name)}"
                 )
 
+        if not 0.0 <= self.action_noise <= 1.0:
+            raise ValueError(f"action noise must be in [0, 1], got {self.action_noise}")
+
     def collect_seed(self, r: int) -> int:
         return self.seed * COLLECT_STREAM + r
 
@@ -209,6 +212,13 @@ def finetune(cfg: ImproveConfig, init: str, data: list[str], out: Path) -> str:
 
 def run_improve(cfg: ImproveConfig, out: str | Path, *, workers: int = 1) -> dict[str, Any]:
     """Run (or continue) the rounds; returns and writes the per-round table."""
+    from se3net.checkpoint import load_checkpoint
+    from sim.datastore import read_manifest
+
+    scenario = load_scenario(cfg.scenario)  # refuse what cannot work before writing anything
+    load_checkpoint(cfg.model, scenario=scenario)
+    if read_manifest(cfg.data)["identity"]["scenario"] != json.loads(json.dumps(asdict(scenario))):
+        raise ValueError(f"{cfg.data} was not generated with scenario {cfg.scenario!r}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta = out / "config.json"

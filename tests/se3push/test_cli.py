@@ -168,6 +168,29 @@ def test_train_and_eval_bad_input_is_exit_code_2(tiny_data, tmp_path, capsys):
     assert "does not exist" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["train", "--rollout-steps", "0"], "--rollout-steps must be positive"),
+        (["train", "--init", "nowhere.pt"], "nowhere.pt does not exist"),
+        (["study", "--models", "a=x.pt", "a=y.pt"], "share a label"),
+        (["study", "--models", "oracle", "--trials", "0"], "must be positive"),
+        (["improve", "--model", "default", "--rounds", "0"], "--rounds must be positive"),
+        (["improve", "--model", "default", "--action-noise", "2"], "action noise must be in"),
+        (["improve", "--model", "default"], "does not fit scenario 'tiny'"),
+    ],
+)
+def test_study_improve_and_rollout_bad_input_is_exit_code_2(
+    args, message, tiny_data, tmp_path, capsys
+):
+    base = {"train": ["--out", str(tmp_path / "r")], "study": ["--out", str(tmp_path / "s")],
+            "improve": ["--out", str(tmp_path / "i")]}[args[0]]  # fmt: skip
+    assert main([*args, "--data", str(tiny_data), *base, *(
+        ["--scenario", "tiny"] if args[0] != "train" else [])]) == 2  # fmt: skip
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "i").exists()  # improve refuses before writing anything
+
+
 def test_bench_planner_writes_every_pair(tmp_path):
     path = tmp_path / "bench.json"
     assert main(["bench", "planner", "--repeats", "1", "--json", str(path)]) == 0
