@@ -120,6 +120,9 @@ def run_trials(
 ) -> dict[str, Any]:
     """Run (or finish) a trial set into ``out``; returns the summary.
 
+    Asked for fewer trials than the folder holds, it summarises the first ``n`` and leaves the
+    folder's ``summary.json`` and ``paths.png`` (which describe the whole set) as they are.
+
     Raises:
         ValueError: ``out`` holds trials of another configuration, or bad settings.
     """
@@ -139,7 +142,8 @@ def run_trials(
                 f"{out} holds other trials ({'; '.join(differences(old, new))}); "
                 "use a new --out folder"
             )
-    if not meta_path.exists() or cfg.n > json.loads(meta_path.read_text())["n"]:
+    prefix = meta_path.exists() and cfg.n < json.loads(meta_path.read_text())["n"]
+    if not prefix:
         atomic_write_json(meta_path, asdict(cfg))
     records = {}
     if log.exists():
@@ -176,8 +180,11 @@ def run_trials(
     bar.close()
     ordered = [records[i] for i in range(cfg.n)]
     summary = {"config": asdict(cfg), **summarize(ordered)}
-    atomic_write_json(out / "summary.json", summary)
-    plot_paths(ordered, out / "paths.png", title=f"{cfg.model} / {cfg.planner} on {cfg.scenario}")
+    if not prefix:  # the folder's files describe its whole set, not a prefix asked of it
+        atomic_write_json(out / "summary.json", summary)
+        plot_paths(
+            ordered, out / "paths.png", title=f"{cfg.model} / {cfg.planner} on {cfg.scenario}"
+        )
     return summary
 
 

@@ -66,6 +66,7 @@ def test_a_resumed_run_gives_the_same_results(tmp_path, monkeypatch):
     prefix = run_trials(TrialsConfig("tiny", n=2, model="no-motion", max_steps=4), tmp_path / "b",
                         progress=False)  # fmt: skip
     assert done == [1, 2] and prefix["trials"] == 2  # summarised from the finished trials
+    assert json.loads((tmp_path / "b" / "summary.json").read_text())["trials"] == 3  # kept
     assert prefix["diagnostics"]["still_steps"] + prefix["diagnostics"]["moved_steps"] <= 2 * 4
     with pytest.raises(ValueError, match="holds other trials"):
         run_trials(
