@@ -221,18 +221,24 @@ def rank_correlations(rows: list[dict[str, Any]], success_key: str = "success_ti
     return out
 
 
-def finding(corr: dict[str, float | None], n_models: int) -> str:
-    """The study's result in plain words."""
+def finding(corr: dict[str, float | None], n_models: int, who: str = "models") -> str:
+    """The study's result in plain words (ties named together)."""
     known = {k: v for k, v in corr.items() if v is not None}
     if not known:
-        return "Too few models, or no variation in success, to rank the accuracy measures."
-    best = max(known, key=known.get)
+        return f"Over {n_models} {who}: too few, or no variation in success, to rank the measures."
+    top = max(known.values())
+    best = [ACCURACY[k][0] for k, v in known.items() if v > top - 1e-9]
     order = ", ".join(f"{ACCURACY[k][0]} {v:+.2f}" for k, v in
                       sorted(known.items(), key=lambda kv: -kv[1]))  # fmt: skip
+    verb = (
+        "predicts closed-loop success best"
+        if len(best) == 1
+        else ("predict closed-loop success best, tied")
+    )
     return (
-        f"Over {n_models} models, {ACCURACY[best][0]} predicts closed-loop success best "
-        f"(Spearman rank correlation {known[best]:+.2f}, signed so that +1 means the more "
-        f"accurate model always succeeds more often). All measures: {order}."
+        f"Over {n_models} {who}, {' and '.join(best)} {verb} "
+        f"(Spearman rank correlation {top:+.2f}, signed so that +1 means the more accurate "
+        f"model always succeeds more often). All measures: {order}."
     )
 
 
@@ -319,11 +325,16 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
         summary.pop("config")
         rows.append({"label": label, "model": model, **acc, **summary})
     corr = rank_correlations(rows)
+    learned = [r for r in rows if r["model"] not in BACKEND_MODELS]
+    corr_learned = rank_correlations(learned)
     result = {
         "config": asdict(cfg),
         "rows": rows,
         "rank_correlation_with_success": corr,
-        "finding": finding(corr, len(rows)),
+        "rank_correlation_learned_only": corr_learned,
+        "finding": finding(corr, len(rows))
+        + " "
+        + finding(corr_learned, len(learned), "learned models alone (no oracle, no-motion)"),
     }
     atomic_write_json(out / "study.json", result)
     text = (

@@ -33,7 +33,9 @@ def test_rank_correlation_on_hand_made_models():
     assert corr["horizon_pos_err_cm"] is None  # no variation
     assert corr["horizon_yaw_err_deg"] is None and corr["mask_binariness"] is None
     words = finding(corr, 4)
-    assert "predicts closed-loop success best" in words and ACCURACY["iou"][0] in words
+    assert "predict closed-loop success best, tied" in words  # ratio and IoU tie at +1
+    assert ACCURACY["iou"][0] in words and ACCURACY["ratio_to_no_motion"][0] in words
+    assert "predicts closed-loop" in finding({**corr, "iou": 0.5}, 4)
 
 
 def test_model_labels_and_bad_settings():
@@ -85,6 +87,7 @@ def test_study_end_to_end_on_tiny(study_data, tmp_path):
     assert all(cell.strip() for line in body for cell in line.split("|")[1:-1])
     saved = json.loads((tmp_path / "study" / "study.json").read_text())
     assert set(saved["rank_correlation_with_success"]) == set(ACCURACY) and saved["finding"]
+    assert set(saved["rank_correlation_learned_only"]) == set(ACCURACY)
     assert (tmp_path / "study" / "study.png").read_bytes()[:4] == b"\x89PNG"
     # a second run reuses the cached accuracy and the finished trials
     again = run_study(cfg, tmp_path / "study")
