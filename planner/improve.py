@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from planner.loop import PushConfig, run_push
-from planner.trials import TrialsConfig, draw_trial, run_trials
+from planner.trials import TrialsConfig, draw_trial, run_trials, summary_cells
 from scenarios import load_scenario
 from sim.dataset import (
     CONTROL_LAYOUT,
@@ -256,20 +256,16 @@ def run_improve(cfg: ImproveConfig, out: str | Path, *, workers: int = 1) -> dic
 
 def table_markdown(rows: list[dict[str, Any]]) -> str:
     """Success and diagnostics per round on the held-out trials."""
-    from planner.study import _fmt
-
     lines = [
         "| round | new episodes | success 2 cm/10° [95 % CI] | success 5 cm/20° | phantom | "
         "missed | progress ratio | median steps |",
         "|---" * 8 + "|",
     ]
     for r in rows:
-        d = r["diagnostics"]
-        lo, hi = r["success_tight_ci95"]
+        c = summary_cells(r)
         lines.append(
-            f"| {r['round']} | {r.get('new_episodes', '–')} | {r['success_tight']:.0%} "
-            f"[{lo:.0%}–{hi:.0%}] | {r['success_loose']:.0%} | {_fmt(d['phantom_rate'], '.0%')} "
-            f"| {_fmt(d['missed_rate'], '.0%')} | {_fmt(d['progress_ratio'], '.2f')} | "
+            f"| {r['round']} | {r.get('new_episodes', '–')} | {c['tight']} | "
+            f"{r['success_loose']:.0%} | {c['phantom']} | {c['missed']} | {c['progress']} | "
             f"{r['median_steps']:.0f} |"
         )
     return "\n".join(lines) + "\n"

@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from planner.dynamics import PlanState, make_dynamics
-from planner.trials import TrialsConfig, run_trials
+from planner.trials import TrialsConfig, fmt, run_trials, summary_cells
 from sim.shards import atomic_write_bytes, atomic_write_json
 
 BACKEND_MODELS = ("oracle", "no-motion")
@@ -99,11 +99,6 @@ def parse_models(models: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:
     return out
 
 
-def _pose(T: np.ndarray) -> np.ndarray:
-    """Planar pose (..., 3) of homogeneous transforms (..., 4, 4)."""
-    return np.stack([T[..., 0, 3], T[..., 1, 3], np.arctan2(T[..., 1, 0], T[..., 0, 0])], -1)
-
-
 @torch.no_grad()
 def horizon_pose_error(
     model: str, data: str | Path, horizon: int, *, object_index: int = 0, max_windows: int = 500
@@ -117,8 +112,8 @@ def horizon_pose_error(
     ds = PushDataset(data, split="test", horizon=horizon)
     part_id = FIRST_OBJECT_PART + object_index
     e, t = ds.items[:, 0], ds.items[:, 1]
-    T = ds.a["T_world_part"]
-    start, end = _pose(T[e, t, part_id]), _pose(T[e, t + horizon, part_id])
+    poses = ds.a["object_poses"][:, :, object_index]  # (episodes, frames, 3), as recorded
+    start, end = poses[e, t], poses[e, t + horizon]
     moving = np.flatnonzero(np.hypot(*(end - start)[:, :2].T) > HORIZON_MOVED_M)
     if len(moving) == 0:
         raise ValueError(f"the test split of {data} has no window where object {object_index} "
@@ -242,10 +237,6 @@ def finding(corr: dict[str, float | None], n_models: int, who: str = "models") -
     )
 
 
-def _fmt(x: Any, spec: str = ".3f") -> str:
-    return "–" if x is None else format(x, spec)
-
-
 def table_markdown(rows: list[dict[str, Any]]) -> str:
     """One row per model, every figure of the study."""
     head = (
@@ -255,16 +246,14 @@ def table_markdown(rows: list[dict[str, Any]]) -> str:
     )
     lines = [head, "|---" * 14 + "|"]
     for r in rows:
-        d = r["diagnostics"]
-        lo, hi = r["success_tight_ci95"]
+        c = summary_cells(r)
         lines.append(
-            f"| {r['label']} | {_fmt(r['flow_mse_cm2'])} | {_fmt(r['ratio_to_no_motion'])} | "
-            f"{_fmt(r['horizon_pos_err_cm'], '.2f')} | {_fmt(r['horizon_yaw_err_deg'], '.1f')} | "
-            f"{_fmt(r['mask_binariness'])} | {_fmt(r['iou'])} | "
-            f"{r['success_tight']:.0%} [{lo:.0%}–{hi:.0%}] | {r['success_loose']:.0%} | "
+            f"| {r['label']} | {fmt(r['flow_mse_cm2'])} | {fmt(r['ratio_to_no_motion'])} | "
+            f"{fmt(r['horizon_pos_err_cm'], '.2f')} | {fmt(r['horizon_yaw_err_deg'], '.1f')} | "
+            f"{fmt(r['mask_binariness'])} | {fmt(r['iou'])} | "
+            f"{c['tight']} | {r['success_loose']:.0%} | "
             f"{100 * r['median_final_pos_err_m']:.1f} / {r['median_final_yaw_err_deg']:.1f} | "
-            f"{r['median_steps']:.0f} | {_fmt(d['phantom_rate'], '.0%')} | "
-            f"{_fmt(d['missed_rate'], '.0%')} | {_fmt(d['progress_ratio'], '.2f')} |"
+            f"{r['median_steps']:.0f} | {c['phantom']} | {c['missed']} | {c['progress']} |"
         )
     return "\n".join(lines) + "\n"
 

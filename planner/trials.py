@@ -115,6 +115,25 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def fmt(x: Any, spec: str = ".3f") -> str:
+    """A figure for a table, or a dash where it is undefined (None)."""
+    return "–" if x is None else format(x, spec)
+
+
+def summary_cells(s: dict[str, Any]) -> dict[str, str]:
+    """The success and diagnostics figures of a summary, formatted for the tables that show
+    them (trials, study, improve rounds)."""
+    d = s["diagnostics"]
+    (lo, hi), (lo2, hi2) = s["success_tight_ci95"], s["success_loose_ci95"]
+    return {
+        "tight": f"{s['success_tight']:.0%} [{lo:.0%}–{hi:.0%}]",
+        "loose": f"{s['success_loose']:.0%} [{lo2:.0%}–{hi2:.0%}]",
+        "phantom": fmt(d["phantom_rate"], ".0%"),
+        "missed": fmt(d["missed_rate"], ".0%"),
+        "progress": fmt(d["progress_ratio"], ".2f"),
+    }
+
+
 def run_trials(
     cfg: TrialsConfig, out: str | Path, *, workers: int = 1, progress: bool = True
 ) -> dict[str, Any]:

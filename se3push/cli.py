@@ -121,22 +121,30 @@ def _cmd_trials(args: argparse.Namespace) -> int:
         f"{s['median_final_yaw_err_deg']:.1f} deg\n"
         f"  median steps            {s['median_steps']:.0f}\n"
         f"  median replan           {s['median_replan_ms_median']:.0f} ms\n"
-        f"  model exploitation      {_diagnostics_line(s['diagnostics'])}\n"
+        f"  model exploitation      {_diagnostics_line(s)}\n"
         f"wrote {args.out}/trials.jsonl, summary.json, paths.png"
     )
     return 0
 
 
-def _diagnostics_line(d: dict) -> str:
-    def pct(x: float | None) -> str:
-        return "–" if x is None else f"{x:.0%}"
+def _diagnostics_line(s: dict) -> str:
+    from planner.trials import summary_cells
 
-    ratio = "–" if d["progress_ratio"] is None else f"{d['progress_ratio']:.2f}"
+    c, d = summary_cells(s), s["diagnostics"]
     return (
-        f"phantom motion {pct(d['phantom_rate'])} of {d['still_steps']} still steps, "
-        f"missed motion {pct(d['missed_rate'])} of {d['moved_steps']} pushes, "
-        f"predicted/actual progress {ratio}"
+        f"phantom motion {c['phantom']} of {d['still_steps']} still steps, "
+        f"missed motion {c['missed']} of {d['moved_steps']} pushes, "
+        f"predicted/actual progress {c['progress']}"
     )
+
+
+def _closed_loop_options(s: argparse.ArgumentParser, *, seed_help: str) -> None:
+    """The options every command that runs closed-loop trials shares."""
+    s.add_argument("--scenario", default="single_box", help="scenario name or TOML path")
+    s.add_argument("--seed", type=int, default=0, help=seed_help)
+    s.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
+    s.add_argument("--max-steps", type=int, default=60, help="control steps per trial")
+    s.add_argument("--workers", type=int, default=1, help="processes for the trials")
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
@@ -240,20 +248,16 @@ def _parser() -> argparse.ArgumentParser:
     s.set_defaults(run=_cmd_eval)
 
     s = sub.add_parser("trials", help="closed-loop trials with success rates")
-    s.add_argument("--scenario", default="single_box", help="scenario name or TOML path")
+    _closed_loop_options(s, seed_help="seed of the trial set")
     s.add_argument("--n", type=int, default=50, help="number of trials")
     s.add_argument(
         "--model", default="default", help="default, a checkpoint path, oracle or no-motion"
     )
-    s.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
-    s.add_argument("--seed", type=int, default=0, help="seed of the trial set")
-    s.add_argument("--max-steps", type=int, default=60, help="control steps per trial")
     s.add_argument("--out", required=True, help="folder for trials.jsonl, summary.json, paths.png")
-    s.add_argument("--workers", type=int, default=1, help="processes")
     s.set_defaults(run=_cmd_trials)
 
     s = sub.add_parser("study", help="how model accuracy relates to closed-loop success")
-    s.add_argument("--scenario", default="single_box", help="scenario name or TOML path")
+    _closed_loop_options(s, seed_help="seed of the trial set")
     s.add_argument("--data", required=True, help="dataset whose test split gives the accuracy")
     s.add_argument(
         "--models",
@@ -262,22 +266,17 @@ def _parser() -> argparse.ArgumentParser:
         help="oracle, no-motion, default or checkpoint paths (LABEL=PATH names one)",
     )
     s.add_argument("--trials", type=int, default=30, help="closed-loop trials per model")
-    s.add_argument("--seed", type=int, default=0, help="seed of the trial set")
-    s.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
-    s.add_argument("--max-steps", type=int, default=60, help="control steps per trial")
     s.add_argument("--max-examples", type=int, default=1000, help="held-out examples per model")
     s.add_argument("--out", required=True, help="folder for study.md/.json/.png and trials/")
-    s.add_argument("--workers", type=int, default=1, help="processes for the trials")
     s.set_defaults(run=_cmd_study)
 
     s = sub.add_parser("improve", help="rounds of planner-visited data and fine-tuning")
-    s.add_argument("--scenario", default="single_box", help="scenario name or TOML path")
+    _closed_loop_options(s, seed_help="seed of the held-out trial set")
     s.add_argument("--model", required=True, help="starting checkpoint ('default': shipped)")
     s.add_argument("--data", required=True, help="the exploration data the model was trained on")
     s.add_argument("--rounds", type=int, default=3)
     s.add_argument("--trials-per-round", type=int, default=20, help="pushes recorded per round")
     s.add_argument("--heldout", type=int, default=50, help="held-out trials measuring each round")
-    s.add_argument("--seed", type=int, default=0, help="seed of the held-out trial set")
     s.add_argument(
         "--action-noise",
         type=float,
@@ -287,10 +286,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--finetune-iters", type=int, default=1000)
     s.add_argument("--rollout-steps", type=int, default=1, help="rollout steps of the loss")
     s.add_argument("--lr", type=float, default=3e-4)
-    s.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
-    s.add_argument("--max-steps", type=int, default=60, help="control steps per push")
     s.add_argument("--out", required=True, help="folder of the rounds (resumable)")
-    s.add_argument("--workers", type=int, default=1, help="processes for the trials")
     s.set_defaults(run=_cmd_improve)
 
     s = sub.add_parser("bench", help="time the hot paths (medians over repeats)")
