@@ -73,6 +73,10 @@ class ImproveConfig:
     rollout_steps: int = 1
     """rollout steps of the fine-tuning loss (``se3push train --rollout-steps``)"""
     lr: float = 3e-4
+    visited_fraction: float = 0.5
+    """share of each fine-tuning batch drawn from the planner-visited data: the rounds add a
+    few hundred steps beside tens of thousands of exploration steps, which uniform sampling
+    would hardly show the model"""
     batch: int = 32
     eval_every: int = 250
     planner: str = "cem"
@@ -87,6 +91,8 @@ class ImproveConfig:
 
         if not 0.0 <= self.action_noise <= 1.0:
             raise ValueError(f"action noise must be in [0, 1], got {self.action_noise}")
+        if not 0.0 <= self.visited_fraction < 1.0:
+            raise ValueError(f"--visited-fraction must be in [0, 1), got {self.visited_fraction}")
 
     def collect_seed(self, r: int) -> int:
         return self.seed * COLLECT_STREAM + r
@@ -204,7 +210,7 @@ def finetune(cfg: ImproveConfig, init: str, data: list[str], out: Path) -> str:
         data=tuple(data), out=str(out), variant=net["variant"], k=net["k"],
         iters=cfg.finetune_iters, batch=cfg.batch, lr=cfg.lr, seed=cfg.seed,
         eval_every=min(cfg.eval_every, cfg.finetune_iters), rollout_steps=cfg.rollout_steps,
-        init=init,
+        init=init, later_fraction=cfg.visited_fraction,
     )  # fmt: skip
     train(tcfg, resume=(out / "last.pt").exists())
     return str(out / "best.pt")

@@ -86,12 +86,15 @@ class PushDataset(Dataset):
         self.a = {k: np.concatenate([p.arrays[k] for p in parts]) for k in parts[0].arrays}
         self.episode_index = np.concatenate([p.index for p in parts])
         lengths = self.a["length"].astype(int)
+        source = np.repeat(np.arange(len(parts)), [len(p.index) for p in parts])
         self.items = np.array(
             [(e, t) for e in range(len(lengths)) for t in range(lengths[e] - horizon + 1)],
             dtype=np.int64,
         ).reshape(-1, 2)
         if len(self.items) == 0:
             raise DataError(f"split {split!r} of {root} has no examples of horizon {horizon}")
+        self.source = source[self.items[:, 0]]
+        """per item, which of the dataset folders it comes from (0: the first)"""
 
     def __len__(self) -> int:
         return len(self.items)

@@ -29,6 +29,7 @@ from se3net.data import PushDataset
 from se3net.metrics import FlowStats, point_loss
 from se3net.model import ModelConfig, build_model, sharpening
 from sim.dataset import differences
+from sim.shards import DataError
 
 
 class TrainingDiverged(RuntimeError):
@@ -71,6 +72,9 @@ class TrainConfig:
     """steps of each training rollout, predictions fed back (1: the paper's one-step loss)"""
     init: str | None = None
     """checkpoint whose weights (and normalisation) the run starts from"""
+    later_fraction: float = 0.0
+    """share of each batch drawn from the second and later data folders (planner-visited
+    data, a small pool beside the exploration data); 0: every example equally likely"""
 
     def __post_init__(self) -> None:
         for name in ("iters", "batch", "eval_every", "val_examples", "horizon", "rollout_steps"):
@@ -80,6 +84,10 @@ class TrainConfig:
                 )
         if not self.lr > 0:
             raise ValueError(f"--lr must be positive, got {self.lr}")
+        if not 0.0 <= self.later_fraction < 1.0:
+            raise ValueError(f"--later-fraction must be in [0, 1), got {self.later_fraction}")
+        if self.later_fraction > 0 and isinstance(self.data, str | Path):
+            raise ValueError("--later-fraction needs more than one --data folder")
 
 
 def planner_controls(u: torch.Tensor, dt: float) -> torch.Tensor:
@@ -154,6 +162,22 @@ def validate(
         "val_no_motion_cm2": stats.no_motion_cm2,
         "val_ratio": stats.ratio,
     }
+
+
+def draw_batch(ds: PushDataset, cfg: TrainConfig, rng: np.random.Generator) -> np.ndarray:
+    """Indices of one batch: uniform over all examples, or with ``cfg.later_fraction`` of it
+    drawn from the later data folders, so a small pool of planner-visited steps is seen."""
+    if cfg.later_fraction == 0:
+        return rng.integers(len(ds), size=cfg.batch)
+    later = np.flatnonzero(ds.source > 0)
+    if len(later) == 0:
+        raise DataError("--later-fraction: the later --data folders have no training examples")
+    n_later = round(cfg.later_fraction * cfg.batch)
+    first = np.flatnonzero(ds.source == 0)
+    return np.concatenate(
+        [first[rng.integers(len(first), size=cfg.batch - n_later)],
+         later[rng.integers(len(later), size=n_later)]]
+    )  # fmt: skip
 
 
 def init_weights(cfg: TrainConfig, mcfg: ModelConfig, ds: PushDataset) -> dict[str, Any]:
@@ -267,9 +291,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
             group["lr"] = learning_rate(cfg, it)
         # a fine-tuned model keeps the sharpening it ended with (its masks are already binary)
         sigma, gamma = sharpening(cfg.iters if cfg.init else it, cfg.iters, mcfg)
-        b = {
-            k: v.to(cfg.device) for k, v in ds.batch(rng.integers(len(ds), size=cfg.batch)).items()
-        }
+        b = {k: v.to(cfg.device) for k, v in ds.batch(draw_batch(ds, cfg, rng)).items()}
         sharpen = {"sigma": sigma, "gamma": gamma, "generator": gen}
         loss = rollout_loss(model, b, cfg.rollout_steps, dt, **sharpen)
         if not torch.isfinite(loss):

@@ -81,7 +81,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         data=data, out=args.out, variant=args.variant, iters=args.iters, batch=args.batch,
         lr=args.lr, horizon=args.horizon, seed=args.seed, device=args.device, k=args.k,
         eval_every=args.eval_every, keep_every=args.keep_every,
-        rollout_steps=args.rollout_steps, init=args.init,
+        rollout_steps=args.rollout_steps, init=args.init, later_fraction=args.later_fraction,
     )  # fmt: skip
     try:
         figures = train(cfg, resume=args.resume)
@@ -167,7 +167,7 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         trials_per_round=args.trials_per_round, heldout=args.heldout, seed=args.seed,
         action_noise=args.action_noise, finetune_iters=args.finetune_iters,
         rollout_steps=args.rollout_steps, lr=args.lr, planner=args.planner,
-        max_steps=args.max_steps,
+        max_steps=args.max_steps, visited_fraction=args.visited_fraction,
     )  # fmt: skip
     run_improve(cfg, args.out, workers=args.workers)
     print((Path(args.out) / "improve.md").read_text())
@@ -235,6 +235,12 @@ def _parser() -> argparse.ArgumentParser:
         help="train on N-step rollouts with predictions fed back, as the planner rolls the model",
     )
     s.add_argument("--init", default=None, help="start from this checkpoint's weights (fine-tune)")
+    s.add_argument(
+        "--later-fraction",
+        type=float,
+        default=0.0,
+        help="share of each batch drawn from the second and later --data folders (0: uniform)",
+    )
     s.add_argument("--resume", action="store_true", help="continue the run in --out exactly")
     s.set_defaults(run=_cmd_train)
 
@@ -286,6 +292,12 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--finetune-iters", type=int, default=1000)
     s.add_argument("--rollout-steps", type=int, default=1, help="rollout steps of the loss")
     s.add_argument("--lr", type=float, default=3e-4)
+    s.add_argument(
+        "--visited-fraction",
+        type=float,
+        default=0.5,
+        help="share of each fine-tuning batch drawn from the planner-visited data",
+    )
     s.add_argument("--out", required=True, help="folder of the rounds (resumable)")
     s.set_defaults(run=_cmd_improve)
 

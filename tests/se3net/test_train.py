@@ -208,3 +208,24 @@ def test_fine_tuning_with_rollouts_starts_from_the_checkpoint(tiny_data, tmp_pat
                if "running_" not in k and not k.endswith("num_batches_tracked"))  # fmt: skip
     with pytest.raises(CheckpointError, match="another network"):
         train(_cfg(tiny_data, tmp_path / "bad", iters=1, k=4, init=init), progress=False)
+
+
+def test_later_fraction_draws_that_share_of_each_batch_from_the_later_folders(tiny_data, tmp_path):
+    from se3net.train import draw_batch
+
+    ds = PushDataset([tiny_data, tiny_data], split="train")
+    assert (ds.source == 0).sum() == (ds.source == 1).sum() == len(ds) // 2
+    rng = np.random.default_rng(0)
+    both = (str(tiny_data), str(tiny_data))
+    cfg = _cfg(tiny_data, tmp_path, data=both, batch=8, later_fraction=0.75)
+    drawn = np.concatenate([draw_batch(ds, cfg, rng) for _ in range(50)])
+    assert len(drawn) == 400
+    assert (ds.source[drawn] == 1).sum() == 300  # exactly 6 of every 8, not about half
+    uniform = np.concatenate(
+        [draw_batch(ds, _cfg(tiny_data, tmp_path, data=both, batch=8), rng) for _ in range(50)]
+    )
+    assert 140 < (ds.source[uniform] == 1).sum() < 260
+    with pytest.raises(ValueError, match="more than one --data folder"):
+        _cfg(tiny_data, tmp_path, later_fraction=0.5)
+    with pytest.raises(ValueError, match=r"--later-fraction must be in \[0, 1\)"):
+        _cfg(tiny_data, tmp_path, data=both, later_fraction=1.0)
