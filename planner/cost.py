@@ -4,7 +4,8 @@ and the SQP planner linearises them (Gauss-Newton).
 Per step h of a rollout: the object's position error and symmetry-aware yaw error to the goal
 (the terminal step weighted more than the running steps), a shaping term that draws the pusher
 to the object's far side from the goal while the object is predicted not to move, penalties
-on action size and change, and a penalty for the pusher leaving the workspace.
+on action size and change, a penalty for the pusher leaving the workspace, and, with an
+ensemble of models, a penalty on their disagreement (the planner keeps to what they agree on).
 
 The shaping target goes round the object: a pusher on the goal's side of it is drawn to a
 waypoint on a circle about the object, a step round toward the far side, not straight at the
@@ -58,6 +59,9 @@ class CostConfig:
     """weight of the pusher's distance outside the workspace, per cm"""
     workspace_margin_m: float = 0.03
     """the workspace is the table top shrunk by this margin"""
+    w_spread: float = 1.0
+    """weight of an ensemble's disagreement per step (scaled like the position error); only
+    ensembles report one"""
 
 
 def yaw_period(spec: ObjectSpec) -> float | None:
@@ -156,6 +160,8 @@ class PushCost:
         res.append(math.sqrt(c.w_smooth) * (actions - prev).flatten(1) / self.bound)
         out = torch.relu(rollout.pusher_xy.abs() - self.half.to(actions)) / 0.01
         res.append(math.sqrt(c.w_workspace) * out.flatten(1))
+        if rollout.spread is not None and c.w_spread > 0:
+            res.append(math.sqrt(c.w_spread) * rollout.spread / c.pos_scale_m)
         return torch.cat(res, 1)
 
     def cost(self, state: PlanState, rollout: Rollout, actions: torch.Tensor) -> torch.Tensor:

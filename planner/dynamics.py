@@ -13,6 +13,9 @@ positions over the horizon. Backends:
 - ``OracleDynamics``: the MuJoCo world itself, copied and simulated for each candidate: the
   upper bound any learned model is measured against.
 - ``NoMotionDynamics``: nothing but the pusher moves: the lower bound.
+- ``EnsembleDynamics``: several learned checkpoints rolled side by side; it predicts their
+  mean and reports their disagreement (``Rollout.spread``), which the cost can penalise so
+  the planner keeps to actions the models agree on.
 """
 
 from __future__ import annotations
@@ -97,6 +100,9 @@ class Rollout:
     """(K,H,2) the pusher's position after each step"""
     clouds: torch.Tensor | None = None
     """(K,H,3,Hi,Wi) predicted clouds, if asked for (learned backends)"""
+    spread: torch.Tensor | None = None
+    """(K,H) how much an ensemble's members disagree on the object's pose after each step (m:
+    the RMS over members of the deviation of the object's footprint from the mean pose)"""
 
 
 class Dynamics(Protocol):
@@ -218,11 +224,48 @@ class LearnedDynamics:
         )
 
 
+class EnsembleDynamics:
+    """Learned backends rolled side by side: the mean of their object poses, and their spread.
+
+    The spread at a step is the root mean square, over members, of how far the object's
+    footprint lies from the mean pose: position deviation plus yaw deviation times the
+    footprint radius. Where the members were trained alike it is small; it grows where
+    the data says little, which is where a planner exploiting one model goes wrong.
+    """
+
+    differentiable = True
+
+    def __init__(self, members: list[LearnedDynamics]):
+        if len(members) < 2:
+            raise ValueError(f"an ensemble needs at least two models, got {len(members)}")
+        self.members = members
+        self.model = getattr(members[0], "model", None)  # what the visualiser shows
+        self.name = "ensemble"
+
+    def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
+        outs = [m.rollout(state, actions, clouds=clouds) for m in self.members]
+        poses = torch.stack([o.object_poses for o in outs])  # (M,K,H,3)
+        mean = poses.mean(0)  # yaws are the start yaw plus small increments: a plain mean
+        dev = poses - mean
+        radius = state.object_spec.footprint_radius_m
+        spread_sq = (dev[..., :2] ** 2).sum(-1) + (radius * dev[..., 2]) ** 2
+        return Rollout(
+            mean,
+            outs[0].pusher_xy,
+            torch.stack([o.clouds for o in outs]).mean(0) if clouds else None,
+            spread=(spread_sq.mean(0) + 1e-12).sqrt(),  # offset: a finite gradient at 0
+        )
+
+
+ENSEMBLE_SEP = "+"
+"""checkpoints joined by this form an ensemble (``--model default+runs/b/best.pt``)"""
+
+
 def make_dynamics(
     name: str, scenario: Scenario, *, model: str | None = None, device: str = "cpu"
 ) -> Dynamics:
-    """A backend by name: ``se3net``/``flow`` (a checkpoint; the shipped model by default),
-    ``oracle`` or ``no-motion``.
+    """A backend by name: ``se3net``/``flow`` (a checkpoint; the shipped model by default;
+    checkpoints joined by ``+``: an ensemble of them), ``oracle`` or ``no-motion``.
 
     Raises:
         ValueError: an unknown name. CheckpointError: a model that does not fit the scenario.
@@ -232,7 +275,15 @@ def make_dynamics(
     if name == "no-motion":
         return NoMotionDynamics(scenario)
     if name in ("se3net", "flow"):
+        from pathlib import Path
+
         from se3net.checkpoint import load_checkpoint
+
+        if model is not None and ENSEMBLE_SEP in model and not Path(model).exists():
+            parts = model.split(ENSEMBLE_SEP)
+            return EnsembleDynamics(
+                [make_dynamics(name, scenario, model=m, device=device) for m in parts]
+            )
 
         net, blob = load_checkpoint(model or "default", scenario=scenario, device=device)
         kind = "flow" if blob["model"]["variant"].startswith("flow") else "se3net"

@@ -22,7 +22,7 @@ TIGHT = (0.02, 10.0)
 """success: position within 2 cm and yaw within 10 degrees"""
 LOOSE = (0.05, 20.0)
 """loose success: within 5 cm and 20 degrees"""
-MODELS = ("default", "oracle", "no-motion", "or a checkpoint path")
+MODELS = ("default", "oracle", "no-motion", "a checkpoint path", "or checkpoints joined by +")
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,8 @@ class PushConfig:
     object_index: int = 0
     """which object to push"""
     model: str = "default"
-    """dynamics: the shipped model ("default"), a checkpoint path, "oracle" or "no-motion\""""
+    """dynamics: the shipped model ("default"), a checkpoint path, checkpoints joined by "+" (an
+    ensemble, its disagreement penalised), "oracle" or "no-motion\""""
     planner: str = "cem"
     """optimiser: cem, mppi, grad or sqp"""
     seed: int = 0

@@ -257,7 +257,9 @@ def _parser() -> argparse.ArgumentParser:
     _closed_loop_options(s, seed_help="seed of the trial set")
     s.add_argument("--n", type=int, default=50, help="number of trials")
     s.add_argument(
-        "--model", default="default", help="default, a checkpoint path, oracle or no-motion"
+        "--model",
+        default="default",
+        help="default, a checkpoint path, checkpoints joined by + (ensemble), oracle or no-motion",
     )
     s.add_argument("--out", required=True, help="folder for trials.jsonl, summary.json, paths.png")
     s.set_defaults(run=_cmd_trials)
@@ -331,7 +333,8 @@ def _plan_push_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--model",
         default="default",
-        help="default (shipped), a checkpoint path, oracle or no-motion",
+        help="default (shipped), a checkpoint path, checkpoints joined by + (an ensemble whose "
+        "disagreement the cost penalises), oracle or no-motion",
     )
     p.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
     p.add_argument("--seed", type=int, default=0, help="seed of the world and the planner")

@@ -1,12 +1,25 @@
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
 
 from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
-from planner.dynamics import LearnedDynamics, NoMotionDynamics, planar_fit
+from planner.dynamics import (
+    EnsembleDynamics,
+    LearnedDynamics,
+    NoMotionDynamics,
+    integrate_pusher,
+    planar_fit,
+)
+from scenarios import load_scenario
 from se3net.checkpoint import CheckpointError
 from se3net.model import ModelConfig, build_model
 from sim import PushWorld
+from tests.planner.toy import TOY_COST, CarriedDisk, toy_state
+
+SINGLE_BOX = load_scenario("single_box")
+DT = SINGLE_BOX.action.dt_control_s
 
 
 def _approach(world, obs, n=6):
@@ -109,3 +122,64 @@ def test_planar_fit_recovers_a_known_planar_motion():
     yaw, xy = planar_fit(src, dst, centre)
     torch.testing.assert_close(yaw, torch.tensor([th, 0.0]), atol=1e-5, rtol=0)
     torch.testing.assert_close(xy, torch.stack([R @ centre + t, centre]), atol=1e-5, rtol=0)
+
+
+class _Carried(CarriedDisk):
+    """The toy disk, carried with per-axis gains: a member of a disagreeing ensemble."""
+
+    def __init__(self, gain: tuple[float, float]):
+        super().__init__(DT)
+        self.gain = torch.tensor(gain)
+
+    def rollout(self, state, actions, *, clouds=False):
+        moved = super().rollout(state, actions * self.gain.to(actions))
+        return dataclasses.replace(moved, pusher_xy=integrate_pusher(state, actions, DT))
+
+
+def test_an_ensemble_predicts_the_members_mean_and_their_spread():
+    state = toy_state()
+    U = 0.1 * torch.randn(5, 4, 2, generator=torch.Generator().manual_seed(0))
+    r = EnsembleDynamics([_Carried((1.0, 1.0)), _Carried((0.0, 0.0))]).rollout(state, U)
+    moved = DT * torch.cumsum(U, 1)
+    torch.testing.assert_close(r.object_poses[..., :2], 0.5 * moved)
+    torch.testing.assert_close(r.pusher_xy, moved)
+    torch.testing.assert_close(r.spread, 0.5 * moved.norm(dim=-1), atol=1e-6, rtol=1e-5)
+    same = EnsembleDynamics([_Carried((1.0, 1.0)), _Carried((1.0, 1.0))]).rollout(state, U)
+    assert same.spread.max() < 1e-5
+    with pytest.raises(ValueError, match="at least two models"):
+        EnsembleDynamics([_Carried((1.0, 1.0))])
+
+
+def test_the_planner_keeps_to_pushes_the_ensemble_agrees_on():
+    # the members agree on motion along x and disagree along y (one says it does not move)
+    ensemble = EnsembleDynamics([_Carried((1.0, 1.0)), _Carried((1.0, 0.0))])
+    strong = PlannerConfig(samples=256, elites=16, iterations=8)
+
+    def planned(goal, w_spread):
+        cost = PushCost(
+            SINGLE_BOX, torch.tensor(goal), dataclasses.replace(TOY_COST, w_spread=w_spread)
+        )
+        return make_planner("cem", ensemble, cost, SINGLE_BOX, strong).plan(toy_state())[1].actions
+
+    along_x = (0.06, 0.0, 0.0)
+    # where they agree the penalty changes nothing but the sampled sideways noise
+    np.testing.assert_allclose(planned(along_x, 1.0), planned(along_x, 0.0), atol=0.02)
+    along_y = (0.0, 0.06, 0.0)
+    free, careful = planned(along_y, 0.0)[:, 1].sum(), planned(along_y, 1.0)[:, 1].sum()
+    assert free > 0.3  # without the penalty it pushes hard toward the goal
+    assert careful < 0.7 * free  # with it, much less where the members disagree
+
+
+def test_checkpoints_joined_by_plus_make_an_ensemble():
+    world = PushWorld(SINGLE_BOX)
+    state = plan_state(world.reset(0), world)
+    U = 0.1 * torch.randn(3, 2, 2, generator=torch.Generator().manual_seed(1))
+    pair = make_dynamics("se3net", SINGLE_BOX, model="default+default")
+    assert isinstance(pair, EnsembleDynamics) and len(pair.members) == 2
+    one = make_dynamics("se3net", SINGLE_BOX, model="default")
+    with torch.no_grad():
+        r, r1 = pair.rollout(state, U), one.rollout(state, U)
+    torch.testing.assert_close(r.object_poses, r1.object_poses)
+    assert r.spread.max() < 1e-5
+    with pytest.raises(CheckpointError, match="nowhere.pt"):
+        make_dynamics("se3net", SINGLE_BOX, model="default+nowhere.pt")
