@@ -52,6 +52,21 @@ def checkpoint_name(path: str | Path) -> str:
     return path.parent.name if path.stem in ("best", "last") else path.stem
 
 
+def checkpoint_names(paths: list[str | Path]) -> list[str]:
+    """Names that tell the checkpoints apart: ``checkpoint_name``, with more of the run's path
+    where two would share one (``round_1/model`` and ``round_3/model``)."""
+    names = [checkpoint_name(p) for p in paths]
+    for depth in range(2, 8):
+        clash = {n for n in names if names.count(n) > 1}
+        if not clash:
+            break
+        for i, path in enumerate(paths):
+            if names[i] in clash:
+                folder = Path(path).resolve().parent
+                names[i] = "/".join([*folder.parts[-depth:-1], checkpoint_name(path)])
+    return names
+
+
 def _subset(n: int, limit: int) -> np.ndarray:
     return np.linspace(0, n - 1, min(n, limit)).round().astype(int)
 
@@ -64,8 +79,10 @@ def evaluate_checkpoint(
     max_examples: int = 2000,
     batch: int = 64,
     device: str = "cpu",
+    name: str | None = None,
 ) -> EvalResult:
-    """Evaluate one checkpoint on the test split of ``data``."""
+    """Evaluate one checkpoint on the test split of ``data`` (``name``: its label, by default
+    ``checkpoint_name``)."""
     one = PushDataset(data, split="test", horizon=1)
     model, blob = load_checkpoint(path, scenario=one.scenario, device=device)
     flow, masks = FlowStats(), MaskStats()
@@ -87,7 +104,7 @@ def evaluate_checkpoint(
             steps[k].add(x, b["points"], b["target"][:, k], b["target_valid"][:, k])
     is_se3 = masks.n_points > 0
     return EvalResult(
-        name=checkpoint_name(path),
+        name=name or checkpoint_name(path),
         variant=blob["model"]["variant"],
         checkpoint=str(path),
         examples=len(_subset(len(one), max_examples)),
@@ -141,7 +158,12 @@ def table_markdown(results: list[EvalResult], data: str) -> str:
 
 @torch.no_grad()
 def save_pictures(
-    paths: list[str | Path], data: str | Path, out_dir: str | Path, *, n: int = 3
+    paths: list[str | Path],
+    data: str | Path,
+    out_dir: str | Path,
+    *,
+    n: int = 3,
+    names: list[str] | None = None,
 ) -> list[Path]:
     """For each checkpoint, a PNG of a few test examples where an object moves: true parts,
     mask argmax (SE3-Nets), true and predicted flow magnitude, and the error."""
@@ -159,7 +181,7 @@ def save_pictures(
     b = ds.batch(picks)
     written = []
     plt = _pyplot()
-    for path in paths:
+    for path, name in zip(paths, names or checkpoint_names(paths), strict=True):
         model, blob = load_checkpoint(path, scenario=ds.scenario)
         pred = model(b["points"], b["u"][:, 0], b["valid"])
         fig, axes = plt.subplots(len(picks), 5, figsize=(17, 3.4 * len(picks)), squeeze=False)
@@ -192,8 +214,8 @@ def save_pictures(
                 im = ax.imshow(np.where(valid, img, np.nan), cmap=cmap, vmin=lo, vmax=hi)
                 if cmap == "magma":
                     fig.colorbar(im, ax=ax)
-        fig.suptitle(f"{checkpoint_name(path)} ({blob['model']['variant']}): test examples")
-        out = Path(out_dir) / f"{checkpoint_name(path)}_examples.png"
+        fig.suptitle(f"{name} ({blob['model']['variant']}): test examples")
+        out = Path(out_dir) / f"{name.replace('/', '_')}_examples.png"
         save_figure(fig, out)
         written.append(out)
     return written
@@ -207,10 +229,14 @@ def evaluate(
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    results = [evaluate_checkpoint(p, data, max_examples=max_examples) for p in paths]
+    names = checkpoint_names(paths)
+    results = [
+        evaluate_checkpoint(p, data, max_examples=max_examples, name=name)
+        for p, name in zip(paths, names, strict=True)
+    ]
     (out_dir / "table.md").write_text(table_markdown(results, str(data)))
     (out_dir / "eval.json").write_text(
         json.dumps({r.name: r.to_dict() for r in results}, indent=1) + "\n"
     )
-    save_pictures(paths, data, out_dir)
+    save_pictures(paths, data, out_dir, names=names)
     return results

@@ -229,3 +229,20 @@ def test_later_fraction_draws_that_share_of_each_batch_from_the_later_folders(ti
         _cfg(tiny_data, tmp_path, later_fraction=0.5)
     with pytest.raises(ValueError, match=r"--later-fraction must be in \[0, 1\)"):
         _cfg(tiny_data, tmp_path, data=both, later_fraction=1.0)
+
+
+def test_checkpoints_of_like_named_runs_get_names_that_tell_them_apart(tmp_path):
+    from se3net.evaluate import checkpoint_names
+
+    paths = [
+        tmp_path / "improve/round_1/model/best.pt",
+        tmp_path / "improve/round_3/model/best.pt",
+        tmp_path / "runs/sb_se3net/best.pt",
+        tmp_path / "runs/snap/iter_002500.pt",
+    ]
+    assert checkpoint_names(paths) == [
+        "round_1/model",
+        "round_3/model",
+        "sb_se3net",
+        "iter_002500",
+    ]
