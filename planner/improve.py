@@ -278,7 +278,8 @@ def table_markdown(rows: list[dict[str, Any]]) -> str:
 
 
 def plot_rounds(rows: list[dict[str, Any]], out: Path) -> None:
-    """Success (with its interval) and the diagnostics against the round."""
+    """Success (with its interval) and the diagnostics against the round, with the aims:
+    phantom and missed motion under 5 %, predicted/actual progress within 0.8-1.25."""
     from sim.render import _pyplot, save_figure
 
     plt = _pyplot()
@@ -288,15 +289,28 @@ def plot_rounds(rows: list[dict[str, Any]], out: Path) -> None:
         y = np.array([r[key] for r in rows])
         ci = np.array([r[f"{key}_ci95"] for r in rows])
         a.errorbar(x, y, yerr=[y - ci[:, 0], ci[:, 1] - y], marker="o", capsize=3, label=label)
-    a.set_xlabel("round")
     a.set_ylabel("held-out success")
     a.set_ylim(-0.05, 1.05)
     a.legend()
-    for key in ("phantom_rate", "missed_rate", "progress_ratio"):
-        y = [r["diagnostics"][key] for r in rows]
-        b.plot(x, [np.nan if v is None else v for v in y], marker="o", label=key)
-    b.axhline(0.05, color="grey", ls=":", lw=0.8)
-    b.set_xlabel("round")
-    b.legend()
+
+    def diag(key: str) -> list[float]:
+        return [np.nan if r["diagnostics"][key] is None else r["diagnostics"][key] for r in rows]
+
+    b.plot(x, 100 * np.array(diag("phantom_rate")), marker="o", label="phantom motion")
+    b.plot(x, 100 * np.array(diag("missed_rate")), marker="s", label="missed motion")
+    b.axhline(5.0, color="grey", ls=":", lw=0.8)
+    b.set_ylabel("% of executed steps (aim < 5 %)")
+    b.set_ylim(0, max(10.0, 100 * np.nanmax(diag("phantom_rate") + diag("missed_rate")) + 1))
+    c = b.twinx()
+    c.axhspan(0.8, 1.25, color="green", alpha=0.08)
+    c.plot(x, diag("progress_ratio"), marker="^", color="green", label="predicted/actual progress")
+    c.set_ylabel("predicted/actual progress (aim 0.8-1.25)")
+    c.set_ylim(0, 2)
+    lines = b.get_legend_handles_labels()
+    more = c.get_legend_handles_labels()
+    b.legend(lines[0] + more[0], lines[1] + more[1], loc="upper left", fontsize=8)
+    for ax in (a, b):
+        ax.set_xlabel("round")
+        ax.set_xticks(x)
     fig.suptitle("planner-visited data: held-out trials per round")
     save_figure(fig, out)
