@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
-from planner.cost import yaw_period
+from planner.cost import CostConfig, yaw_period
 from planner.diagnostics import STEP_FIGURES, exploitation, step_figures
 from planner.viz import MeshcatVisualiser, NullVisualiser
 from scenarios import Scenario, load_scenario
@@ -49,10 +49,20 @@ class PushConfig:
     action_noise: float = 0.0
     """SD of Gaussian noise added to each executed action, as a fraction of the action bound
     (exploration when collecting planner-visited data; 0 = the plan's action as it is)"""
+    spread_weight: float = CostConfig.w_spread
+    """weight of an ensemble's disagreement in the cost (0 = plan on the members' mean alone;
+    no effect on a single model)"""
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.action_noise <= 1.0:
             raise ValueError(f"action noise must be in [0, 1], got {self.action_noise}")
+        check_spread_weight(self.spread_weight)
+
+
+def check_spread_weight(w: float) -> None:
+    """Raises ValueError unless ``w`` is a usable weight of an ensemble's disagreement."""
+    if not (math.isfinite(w) and w >= 0):
+        raise ValueError(f"--spread-weight must be a finite number >= 0, got {w}")
 
 
 @dataclass
@@ -158,7 +168,7 @@ def run_push(
     planner = make_planner(
         cfg.planner,
         dynamics,
-        PushCost(scenario, torch.tensor(goal)),
+        PushCost(scenario, torch.tensor(goal), CostConfig(w_spread=cfg.spread_weight)),
         scenario,
         PlannerConfig(seed=cfg.seed),
     )

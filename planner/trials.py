@@ -15,14 +15,14 @@ import json
 import math
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass
+from dataclasses import MISSING, asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from planner.diagnostics import pooled
-from planner.loop import PushConfig, pose_errors, run_push
+from planner.loop import PushConfig, check_spread_weight, pose_errors, run_push
 from scenarios import Scenario, load_scenario
 from sim import PushWorld
 from sim.dataset import differences
@@ -45,12 +45,15 @@ class TrialsConfig:
     """seed of the trial set (and of each trial's planner)"""
     max_steps: int = 60
     """control steps per trial"""
+    spread_weight: float = PushConfig.spread_weight
+    """weight of an ensemble's disagreement in the cost"""
 
     def __post_init__(self) -> None:
         if self.n < 1 or self.max_steps < 1:
             raise ValueError(
                 f"--n and --max-steps must be positive, got {self.n} and {self.max_steps}"
             )
+        check_spread_weight(self.spread_weight)
 
 
 def draw_trial(scenario: Scenario, seed: int, i: int) -> dict[str, Any]:
@@ -85,6 +88,7 @@ def run_trial(cfg: TrialsConfig, i: int) -> dict[str, Any]:
         planner=cfg.planner,
         seed=trial["reset_seed"],
         max_steps=cfg.max_steps,
+        spread_weight=cfg.spread_weight,
     )
     result = run_push(push)
     path = [trial["start"][:2]] + [r.object_pose[:2] for r in result.records]
@@ -155,6 +159,9 @@ def run_trials(
     meta_path, log = out / "config.json", out / "trials.jsonl"
     if meta_path.exists():
         old, new = json.loads(meta_path.read_text()), asdict(cfg)
+        for f in fields(cfg):  # a folder written before a setting existed had its default
+            if f.name not in old and f.default is not MISSING:
+                old[f.name] = f.default
         old.pop("n", None), new.pop("n")  # the set is a prefix: any n extends or summarises it
         if old != new:
             raise ValueError(

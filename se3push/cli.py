@@ -108,7 +108,8 @@ def _cmd_trials(args: argparse.Namespace) -> int:
     from planner.trials import TrialsConfig, run_trials
 
     cfg = TrialsConfig(scenario=args.scenario, n=args.n, model=args.model, planner=args.planner,
-                       seed=args.seed, max_steps=args.max_steps)  # fmt: skip
+                       seed=args.seed, max_steps=args.max_steps,
+                       spread_weight=args.spread_weight)  # fmt: skip
     s = run_trials(cfg, args.out, workers=args.workers)
     lo, hi = s["success_tight_ci95"]
     lo2, hi2 = s["success_loose_ci95"]
@@ -145,6 +146,16 @@ def _closed_loop_options(s: argparse.ArgumentParser, *, seed_help: str) -> None:
     s.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
     s.add_argument("--max-steps", type=int, default=60, help="control steps per trial")
     s.add_argument("--workers", type=int, default=1, help="processes for the trials")
+
+
+def _spread_weight_option(s: argparse.ArgumentParser) -> None:
+    from planner.cost import CostConfig
+
+    s.add_argument(
+        "--spread-weight", type=float, default=CostConfig.w_spread, metavar="W",
+        help="weight of an ensemble's disagreement in the cost (0: plan on the members' mean "
+        f"alone; default {CostConfig.w_spread})",
+    )  # fmt: skip
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
@@ -261,6 +272,7 @@ def _parser() -> argparse.ArgumentParser:
         default="default",
         help="default, a checkpoint path, checkpoints joined by + (ensemble), oracle or no-motion",
     )
+    _spread_weight_option(s)
     s.add_argument("--out", required=True, help="folder for trials.jsonl, summary.json, paths.png")
     s.set_defaults(run=_cmd_trials)
 
@@ -336,6 +348,7 @@ def _plan_push_parser() -> argparse.ArgumentParser:
         help="default (shipped), a checkpoint path, checkpoints joined by + (an ensemble whose "
         "disagreement the cost penalises), oracle or no-motion",
     )
+    _spread_weight_option(p)
     p.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
     p.add_argument("--seed", type=int, default=0, help="seed of the world and the planner")
     p.add_argument("--max-steps", type=int, default=60, help="control steps before giving up")
@@ -360,7 +373,7 @@ def _cmd_plan_push(args: argparse.Namespace) -> int:
     cfg = PushConfig(
         goal=(x, y, math.radians(yaw_deg)), scenario=args.scenario, object_index=args.object,
         model=args.model, planner=args.planner, seed=args.seed, max_steps=args.max_steps,
-        device=args.device,
+        device=args.device, spread_weight=args.spread_weight,
     )  # fmt: skip
 
     def show(rec) -> None:

@@ -90,6 +90,10 @@ def test_plan_push_json_and_exit_codes(capsys):
             ["--goal", "0.05", "0.0", "0", "--model", "oracle", "--planner", "ilqr"],
             "unknown planner 'ilqr'",
         ),
+        (
+            ["--goal", "0.05", "0.0", "0", "--model", "oracle", "--spread-weight", "-1"],
+            "--spread-weight must be a finite number >= 0, got -1.0",
+        ),
     ],
 )
 def test_plan_push_bad_input_is_exit_code_2(args, message, capsys):
@@ -102,3 +106,21 @@ def test_plan_push_wrong_number_of_goal_values_is_exit_code_2(capsys):
         plan_push_main(["--goal", "0.1", "0.0"])
     assert exc.value.code == 2
     assert "--goal" in capsys.readouterr().err
+
+
+def test_the_spread_weight_reaches_the_cost(monkeypatch):
+    import planner.loop as loop
+
+    seen = []
+    real = loop.PushCost
+
+    def spy(scenario, goal, cfg):
+        seen.append(cfg.w_spread)
+        return real(scenario, goal, cfg)
+
+    monkeypatch.setattr(loop, "PushCost", spy)
+    for w in (None, 0.25):
+        extra = {} if w is None else {"spread_weight": w}
+        run_push(PushConfig(goal=_nearby_goal(), scenario="tiny", model="no-motion", max_steps=1,
+                            **extra))  # fmt: skip
+    assert seen == [1.0, 0.25]

@@ -104,3 +104,19 @@ def test_trials_command_and_bad_input(tmp_path, capsys):
     assert json.loads((out / "summary.json").read_text())["trials"] == 1
     assert main(["trials", "--scenario", "tiny", "--n", "0", "--out", str(tmp_path / "x")]) == 2
     assert "--n and --max-steps must be positive" in capsys.readouterr().err
+
+
+def test_a_folder_from_before_the_spread_weight_resumes_and_another_weight_is_refused(tmp_path):
+    cfg = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1)
+    run_trials(cfg, tmp_path, progress=False)
+    meta = tmp_path / "config.json"
+    old = json.loads(meta.read_text())
+    assert old.pop("spread_weight") == 1.0
+    meta.write_text(json.dumps(old))  # as written before the setting existed
+    assert run_trials(TrialsConfig("tiny", n=2, model="no-motion", max_steps=1), tmp_path,
+                      progress=False)["trials"] == 2  # fmt: skip
+    with pytest.raises(ValueError, match="spread_weight"):
+        run_trials(TrialsConfig("tiny", n=2, model="no-motion", max_steps=1, spread_weight=0.0),
+                   tmp_path, progress=False)  # fmt: skip
+    with pytest.raises(ValueError, match="--spread-weight must be a finite number"):
+        TrialsConfig("tiny", n=1, spread_weight=float("nan"))
