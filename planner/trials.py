@@ -38,7 +38,8 @@ class TrialsConfig:
     n: int
     """number of trials"""
     model: str = "default"
-    """dynamics: default, a checkpoint path, oracle or no-motion"""
+    """dynamics: default, a checkpoint path, checkpoints joined by "+" (an ensemble), oracle or
+    no-motion"""
     planner: str = "cem"
     """optimiser"""
     seed: int = 0
