@@ -15,7 +15,7 @@ import json
 import math
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import MISSING, asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +55,11 @@ class TrialsConfig:
                 f"--n and --max-steps must be positive, got {self.n} and {self.max_steps}"
             )
         check_spread_weight(self.spread_weight)
+
+
+SETTINGS_ADDED_LATER = {"spread_weight": 1.0}
+"""settings a trial folder's config.json may lack, with the value its trials ran with (the
+folder was written before the setting existed): such folders resume, other gaps are refused"""
 
 
 def draw_trial(scenario: Scenario, seed: int, i: int) -> dict[str, Any]:
@@ -160,9 +165,7 @@ def run_trials(
     meta_path, log = out / "config.json", out / "trials.jsonl"
     if meta_path.exists():
         old, new = json.loads(meta_path.read_text()), asdict(cfg)
-        for f in fields(cfg):  # a folder written before a setting existed had its default
-            if f.name not in old and f.default is not MISSING:
-                old[f.name] = f.default
+        old = {**SETTINGS_ADDED_LATER, **old}
         old.pop("n", None), new.pop("n")  # the set is a prefix: any n extends or summarises it
         if old != new:
             raise ValueError(
