@@ -177,6 +177,11 @@ def test_train_and_eval_bad_input_is_exit_code_2(tiny_data, tmp_path, capsys):
         (["study", "--models", "oracle", "--trials", "0"], "must be positive"),
         (["improve", "--model", "default", "--rounds", "0"], "--rounds must be positive"),
         (["improve", "--model", "default", "--action-noise", "2"], "action noise must be in"),
+        (
+            ["improve", "--model", "default", "--visited-fraction", "1"],
+            "--visited-fraction must be in [0, 1), got 1.0",
+        ),
+        (["train", "--later-fraction", "0.5"], "--later-fraction needs more than one --data"),
         (["improve", "--model", "default"], "does not fit scenario 'tiny'"),
     ],
 )
