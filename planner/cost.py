@@ -22,7 +22,7 @@ import torch
 
 from planner.dynamics import PlanState, Rollout
 from scenarios import Scenario
-from sim.mjcf import ObjectSpec
+from sim.planar import wrap_angle
 
 
 @dataclass(frozen=True)
@@ -62,19 +62,6 @@ class CostConfig:
     w_spread: float = 1.0
     """weight of an ensemble's disagreement per step (scaled like the position error); only
     ensembles report one"""
-
-
-def yaw_period(spec: ObjectSpec) -> float | None:
-    """The angle after which the object looks the same (None: any angle, a cylinder)."""
-    if spec.shape == "cylinder":
-        return None
-    sx, sy, _ = spec.size_m
-    return math.pi / 2 if abs(sx - sy) < 1e-3 else math.pi
-
-
-def wrap(angle: torch.Tensor, period: float) -> torch.Tensor:
-    """Angle difference wrapped to [-period/2, period/2)."""
-    return torch.remainder(angle + period / 2, period) - period / 2
 
 
 def check_goal(scenario: Scenario, goal: torch.Tensor | tuple[float, float, float]) -> torch.Tensor:
@@ -142,9 +129,9 @@ class PushCost:
         w[-1] = math.sqrt(c.w_terminal)
         pos = (rollout.object_poses[..., :2] - goal[:2]) / c.pos_scale_m * w[None, :, None]
         res = [pos.flatten(1)]
-        period = yaw_period(state.object_spec)
+        period = state.object_spec.yaw_period_rad
         if period is not None:
-            yaw = wrap(rollout.object_poses[..., 2] - goal[2], period) / c.yaw_scale_rad
+            yaw = wrap_angle(rollout.object_poses[..., 2] - goal[2], period) / c.yaw_scale_rad
             res.append(math.sqrt(c.w_yaw) * yaw * w)
         moved_sq = ((rollout.object_poses[:, -1, :2] - state.object_pose[:2].to(actions)) ** 2).sum(
             -1

@@ -12,11 +12,12 @@ import numpy as np
 import torch
 
 from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
-from planner.cost import CostConfig, yaw_period
+from planner.cost import CostConfig
 from planner.diagnostics import STEP_FIGURES, exploitation, step_figures
 from planner.viz import MeshcatVisualiser, NullVisualiser
 from scenarios import Scenario, load_scenario
 from sim import Observation, PushWorld
+from sim.planar import pose_errors
 
 TIGHT = (0.02, 10.0)
 """success: position within 2 cm and yaw within 10 degrees"""
@@ -113,15 +114,6 @@ class PushResult:
         return {**{k: v for k, v in asdict(self).items() if k != "records"}, "per_step": per_step}
 
 
-def pose_errors(pose: np.ndarray, goal: np.ndarray, period: float | None) -> tuple[float, float]:
-    """Position error (m) and symmetry-aware yaw error (deg) of a planar pose."""
-    pos = float(np.hypot(*(pose[:2] - goal[:2])))
-    if period is None:
-        return pos, 0.0
-    d = (pose[2] - goal[2] + period / 2) % period - period / 2
-    return pos, abs(math.degrees(d))
-
-
 def check_reachable(scenario: Scenario, goal: tuple[float, float, float]) -> None:
     """Refuse a goal that is not finite or outside the scenario's goal region, saying where the
     region is."""
@@ -172,7 +164,7 @@ def run_push(
         scenario,
         PlannerConfig(seed=cfg.seed),
     )
-    period = yaw_period(world.objects[cfg.object_index])
+    period = world.objects[cfg.object_index].yaw_period_rad
 
     def errors() -> tuple[float, float]:
         return pose_errors(obs.object_poses[cfg.object_index], goal, period)

@@ -22,10 +22,11 @@ from typing import Any
 import numpy as np
 
 from planner.diagnostics import pooled
-from planner.loop import PushConfig, check_spread_weight, pose_errors, run_push
+from planner.loop import PushConfig, check_spread_weight, run_push
 from scenarios import Scenario, load_scenario
 from sim import PushWorld
 from sim.dataset import differences
+from sim.planar import pose_errors
 from sim.shards import atomic_write_json
 
 
@@ -57,6 +58,11 @@ class TrialsConfig:
         check_spread_weight(self.spread_weight)
 
 
+TRIAL_SET = 2
+"""version of the trial draw, stored in a folder's config.json: 2 measures a goal's turn with
+the object's symmetry, as success does (1 took it over 360°, so some goals were closer than
+``goals.min_*`` allow); a folder of another version holds other trials and is refused"""
+
 SETTINGS_ADDED_LATER = {"spread_weight": 1.0}
 """settings a trial folder's config.json may lack, with the value its trials ran with (the
 folder was written before the setting existed): such folders resume, other gaps are refused"""
@@ -66,12 +72,14 @@ def draw_trial(scenario: Scenario, seed: int, i: int) -> dict[str, Any]:
     """Trial i of the set: the world's reset seed, the object's start pose and the goal."""
     rng = np.random.default_rng([seed, i, 7])
     reset_seed = int(rng.integers(1 << 31))
-    start = PushWorld(scenario).reset(reset_seed).object_poses[0]
+    world = PushWorld(scenario)
+    start = world.reset(reset_seed).object_poses[0]
+    period = world.objects[0].yaw_period_rad  # success measures the turn with this symmetry
     g = scenario.goals
     x0, x1, y0, y1 = g.region_m
     for _ in range(10_000):
         goal = np.array([rng.uniform(x0, x1), rng.uniform(y0, y1), rng.uniform(-math.pi, math.pi)])
-        dist, turn = pose_errors(goal, start, 2 * math.pi)
+        dist, turn = pose_errors(goal, start, period)
         if dist <= g.max_distance_m and (dist >= g.min_distance_m or turn >= g.min_yaw_deg):
             return {
                 "trial": i,
@@ -163,8 +171,9 @@ def run_trials(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta_path, log = out / "config.json", out / "trials.jsonl"
+    meta = {**asdict(cfg), "trial_set": TRIAL_SET}
     if meta_path.exists():
-        old, new = json.loads(meta_path.read_text()), asdict(cfg)
+        old, new = json.loads(meta_path.read_text()), dict(meta)
         old = {**SETTINGS_ADDED_LATER, **old}
         old.pop("n", None), new.pop("n")  # the set is a prefix: any n extends or summarises it
         if old != new:
@@ -174,7 +183,7 @@ def run_trials(
             )
     prefix = meta_path.exists() and cfg.n < json.loads(meta_path.read_text())["n"]
     if not prefix:
-        atomic_write_json(meta_path, asdict(cfg))
+        atomic_write_json(meta_path, meta)
     records = {}
     if log.exists():
         for line in log.read_text().splitlines():

@@ -22,6 +22,7 @@ import numpy as np
 
 from scenarios import Scenario
 from sim.mjcf import ObjectSpec
+from sim.planar import wrap_angle
 from sim.world import Observation
 
 MODES = ("aimed", "glance", "free", "rest", "approach")
@@ -222,7 +223,7 @@ class ExplorationPolicy:
             R = self._radius(i)
             ang_a = math.atan2(a[1] - c[1], a[0] - c[0])
             ang_b = math.atan2(b[1] - c[1], b[0] - c[0])
-            turn = (ang_b - ang_a + math.pi) % (2 * math.pi) - math.pi
+            turn = wrap_angle(ang_b - ang_a)
             n = max(1, math.ceil(abs(turn) / (math.pi / 4)))
             arc = [ang_a + turn * k / n for k in range(n + 1)]
             return [c + R * np.array([math.cos(g), math.sin(g)]) for g in arc] + [b]

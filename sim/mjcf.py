@@ -48,6 +48,15 @@ class ObjectSpec:
         """Radius of the circle that holds the object's footprint in any yaw."""
         return 0.5 * math.hypot(self.size_m[0], self.size_m[1])
 
+    @property
+    def yaw_period_rad(self) -> float | None:
+        """The turn after which the object looks the same: π for a box, π/2 for a box with a
+        square footprint, None for a cylinder (any turn)."""
+        if self.shape == "cylinder":
+            return None
+        sx, sy, _ = self.size_m
+        return math.pi / 2 if abs(sx - sy) < 1e-3 else math.pi
+
 
 def object_body(i: int) -> str:
     return f"object{i}"

@@ -4,10 +4,11 @@ import math
 import numpy as np
 import pytest
 
-from planner.loop import PushConfig, pose_errors, run_push
+from planner.loop import PushConfig, run_push
 from scenarios import load_scenario
 from se3push.cli import plan_push_main
 from sim import PushWorld
+from sim.planar import pose_errors
 
 
 def _nearby_goal(dx=0.04):

@@ -1,11 +1,14 @@
 import json
 
+import numpy as np
 import pytest
 
 import planner.trials as trials_mod
 from planner.trials import TrialsConfig, draw_trial, run_trials, wilson
 from scenarios import load_scenario
 from se3push.cli import main
+from sim import PushWorld
+from sim.planar import pose_errors
 
 TIMING = ("replan_ms_median",)
 
@@ -24,6 +27,31 @@ def test_goals_follow_the_scenario_distribution():
         assert g.region_m[0] <= x <= g.region_m[1] and g.region_m[2] <= y <= g.region_m[3]
         assert dist <= g.max_distance_m + 1e-9
     assert draw_trial(s, 0, 3) == draw_trial(s, 0, 3) and draw_trial(s, 0, 3) != draw_trial(s, 1, 3)
+
+
+def test_goals_are_as_far_as_specified_under_the_objects_symmetry():
+    """A goal's turn is measured as success measures it (a box repeats every 180°): no goal
+    is both nearer than min_distance_m and turned less than min_yaw_deg."""
+    s = load_scenario("single_box")
+    g = s.goals
+    for i in range(200):
+        t = draw_trial(s, 0, i)
+        world = PushWorld(s)
+        world.reset(t["reset_seed"])
+        dist, turn = pose_errors(np.array(t["goal"]), np.array(t["start"]),
+                                 world.objects[0].yaw_period_rad)  # fmt: skip
+        assert dist >= g.min_distance_m or turn >= g.min_yaw_deg, (i, dist, turn)
+
+
+def test_a_folder_of_another_trial_draw_is_refused(tmp_path):
+    cfg = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1)
+    run_trials(cfg, tmp_path, progress=False)
+    meta = tmp_path / "config.json"
+    old = json.loads(meta.read_text())
+    old.pop("trial_set")  # as written before goals were drawn with the object's symmetry
+    meta.write_text(json.dumps(old))
+    with pytest.raises(ValueError, match="trial_set"):
+        run_trials(cfg, tmp_path, progress=False)
 
 
 def test_the_trial_set_is_the_same_for_two_models(tmp_path):

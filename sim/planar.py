@@ -1,0 +1,34 @@
+"""Planar poses (x_m, y_m, yaw_rad) on the table: the one home of yaw wrapping and of the pose
+error that success, trial goals and the planner's cost all measure."""
+
+from __future__ import annotations
+
+import math
+from typing import TypeVar
+
+import numpy as np
+
+A = TypeVar("A")
+
+
+def wrap_angle(angle: A, period: float = 2 * math.pi) -> A:
+    """An angle difference wrapped to [-period/2, period/2) (a float, an array or a tensor).
+
+    ``period`` is the object's yaw symmetry: 2π for no symmetry, π for a box, π/2 for a box
+    with a square footprint.
+    """
+    return (angle + period / 2) % period - period / 2
+
+
+def pose_errors(pose: np.ndarray, goal: np.ndarray, period: float | None) -> tuple[float, float]:
+    """Position error (m) and symmetry-aware yaw error (deg) of a planar pose.
+
+    Args:
+        pose, goal: (3,) x_m, y_m, yaw_rad.
+        period: the object's yaw symmetry (``ObjectSpec.yaw_period_rad``); None for an object
+            that looks the same at any yaw (a cylinder), whose yaw error is 0.
+    """
+    pos = float(np.hypot(*(np.asarray(pose[:2]) - np.asarray(goal[:2]))))
+    if period is None:
+        return pos, 0.0
+    return pos, abs(math.degrees(float(wrap_angle(pose[2] - goal[2], period))))
