@@ -10,6 +10,7 @@ from scenarios.config import (
     Scenario,
     TableConfig,
 )
+from scenarios.errors import InputError
 from scenarios.loader import ScenarioError, list_scenarios, load_scenario, scenario_from_dict
 
 __all__ = [
@@ -17,6 +18,7 @@ __all__ = [
     "ArmConfig",
     "CameraConfig",
     "GoalsConfig",
+    "InputError",
     "NoiseConfig",
     "ObjectsConfig",
     "Scenario",

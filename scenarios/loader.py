@@ -16,9 +16,10 @@ from pathlib import Path
 from typing import Any
 
 from scenarios.config import Scenario
+from scenarios.errors import InputError
 
 
-class ScenarioError(ValueError):
+class ScenarioError(InputError):
     """A scenario could not be found, parsed or validated."""
 
 
