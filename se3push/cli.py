@@ -196,6 +196,16 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_compare(args: argparse.Namespace) -> int:
+    import json
+
+    from planner.compare import compare_trials, format_comparison
+
+    result = compare_trials(args.a, args.b, tolerance=args.tolerance, n=args.n)
+    print(json.dumps(result) if args.json else format_comparison(result))
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="se3push", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -322,6 +332,20 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--flow-model", default=None, help="planner: also time a flow-net checkpoint")
     s.add_argument("--device", default="cpu", help="planner: device of the learned backends")
     s.set_defaults(run=_cmd_bench)
+
+    s = sub.add_parser(
+        "compare", help="pair two trial folders' outcomes: wins, losses, exact McNemar test"
+    )
+    s.add_argument("a", metavar="A", help="trial folder (from `se3push trials --out`)")
+    s.add_argument("b", metavar="B", help="trial folder of the same --scenario and --seed")
+    s.add_argument(
+        "--tolerance", choices=["tight", "loose"], default="tight",
+        help="success within 2 cm & 10 deg (tight) or 5 cm & 20 deg (loose)",
+    )  # fmt: skip
+    s.add_argument("--n", type=int, default=None,
+                   help="compare the first N trials (default: every trial both hold)")  # fmt: skip
+    s.add_argument("--json", action="store_true", help="print the figures as JSON")
+    s.set_defaults(run=_cmd_compare)
     return p
 
 

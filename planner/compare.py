@@ -1,0 +1,243 @@
+"""Paired comparison of two trial folders: which planner or model succeeds more often.
+
+Two folders written by ``se3push trials`` with the same scenario, seed and trial draw hold the
+same trials (see planner/trials.py), so their outcomes pair by trial index. Trials that both
+succeed or both fail say nothing about which is better; the discordant pairs do. The
+statistics are the exact McNemar test on those pairs and Newcombe's (1998) interval for the
+paired difference of success rates. Computing returns data; :func:`format_comparison` prints.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planner.loop import LOOSE, TIGHT
+from planner.trials import fmt, wilson
+from scenarios import InputError
+from sim.dataset import differences
+
+TOLERANCES = {"tight": TIGHT, "loose": LOOSE}
+"""success tolerances of a trial record: (position m, yaw deg)"""
+SAME_TRIAL_KEYS = ("reset_seed", "start", "goal")
+"""what makes two records the same trial"""
+RECORD_KEYS = ("trial", *SAME_TRIAL_KEYS, "success_tight", "success_loose")
+"""keys every trial record must have to be compared"""
+
+
+def mcnemar_exact(wins: int, losses: int) -> float:
+    """Exact two-sided McNemar p-value: a binomial test of the discordant pairs at 1/2.
+
+    Args:
+        wins: pairs where A succeeded and B failed.
+        losses: pairs where A failed and B succeeded.
+
+    Returns:
+        ``min(1, 2 * sum_{i <= min(w, l)} C(w + l, i) / 2^(w + l))``; 1 when there are no
+        discordant pairs.
+    """
+    m = wins + losses
+    tail = sum(math.comb(m, i) for i in range(min(wins, losses) + 1))
+    return min(1.0, 2 * tail / 2**m)  # exact integers until the one division
+
+
+def paired_difference_ci(
+    both: int, a_only: int, b_only: int, neither: int, *, z: float = 1.96
+) -> tuple[float, float]:
+    """Interval of the paired difference of success rates p_A - p_B: Newcombe (1998) method 10.
+
+    Newcombe, "Improved confidence intervals for the difference between binomial proportions
+    based on paired data", Stat. Med. 17:2635-2650, method 10 (the hybrid score interval):
+    with ``n = both + a_only + b_only + neither``, the rates ``p1 = (both + a_only) / n`` and
+    ``p2 = (both + b_only) / n`` have Wilson intervals (l1, u1) and (l2, u2), and
+
+        L = (p1 - p2) - sqrt((p1 - l1)^2 - 2 phi (p1 - l1)(u2 - p2) + (u2 - p2)^2)
+        U = (p1 - p2) + sqrt((u1 - p1)^2 - 2 phi (u1 - p1)(p2 - l2) + (p2 - l2)^2)
+
+    where phi is the correlation of the two outcomes, ``C / sqrt(e f g h)`` over the four
+    margins e, f, g, h, with Newcombe's continuity correction of ``D = both * neither -
+    a_only * b_only``: C = D - n/2 if D > n/2, 0 if 0 <= D <= n/2, D if D < 0 (phi = 0 when a
+    margin is empty).
+
+    Args:
+        both, a_only, b_only, neither: counts of the paired 2x2 table (n >= 1).
+        z: normal quantile of the interval (1.96: 95 %).
+
+    Returns:
+        (lower, upper) of p_A - p_B.
+    """
+    n = both + a_only + b_only + neither
+    p1, p2 = (both + a_only) / n, (both + b_only) / n
+    (l1, u1), (l2, u2) = wilson(both + a_only, n, z), wilson(both + b_only, n, z)
+    margins = (both + a_only) * (b_only + neither) * (both + b_only) * (a_only + neither)
+    d = both * neither - a_only * b_only
+    c = d - n / 2 if d > n / 2 else min(d, 0)
+    phi = c / math.sqrt(margins) if margins else 0.0
+    lower = math.sqrt(max(0.0, (p1 - l1) ** 2 - 2 * phi * (p1 - l1) * (u2 - p2) + (u2 - p2) ** 2))
+    upper = math.sqrt(max(0.0, (u1 - p1) ** 2 - 2 * phi * (u1 - p1) * (p2 - l2) + (p2 - l2) ** 2))
+    return p1 - p2 - lower, p1 - p2 + upper
+
+
+def paired_stats(success_a: Sequence[bool], success_b: Sequence[bool]) -> dict[str, Any]:
+    """Statistics of paired outcomes: trial i of A against trial i of B.
+
+    Args:
+        success_a, success_b: outcomes (N,), at least one, paired by position.
+
+    Returns:
+        ``n``, ``successes_a``, ``successes_b``, ``wins`` (A succeeded, B failed), ``losses``
+        (A failed, B succeeded), ``p_value`` (exact McNemar), ``difference`` (success rate of
+        A minus B) and ``difference_ci95`` ([lower, upper], Newcombe method 10).
+    """
+    if len(success_a) != len(success_b) or len(success_a) == 0:
+        raise ValueError(f"need paired outcomes, got {len(success_a)} and {len(success_b)}")
+    pairs = [(bool(x), bool(y)) for x, y in zip(success_a, success_b, strict=True)]
+    both, wins = pairs.count((True, True)), pairs.count((True, False))
+    losses, neither = pairs.count((False, True)), pairs.count((False, False))
+    n = len(pairs)
+    return {
+        "n": n,
+        "successes_a": both + wins,
+        "successes_b": both + losses,
+        "wins": wins,
+        "losses": losses,
+        "p_value": mcnemar_exact(wins, losses),
+        "difference": (wins - losses) / n,
+        "difference_ci95": list(paired_difference_ci(both, wins, losses, neither)),
+    }
+
+
+def read_trials(folder: str | Path) -> tuple[dict[str, Any], dict[int, dict[str, Any]]]:
+    """A trial folder's ``config.json`` and its finished trials, by trial index.
+
+    Raises:
+        InputError: the folder lacks ``config.json`` or ``trials.jsonl``, or a record lacks a
+            key comparison needs.
+    """
+    folder = Path(folder)
+    meta, log = folder / "config.json", folder / "trials.jsonl"
+    for path in (log, meta):
+        if not path.is_file():
+            raise InputError(
+                f"{folder} has no {path.name}: give a folder written by `se3push trials --out`"
+            )
+    records = {}
+    for line in log.read_text().splitlines():
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # a blank line, or one cut by an interruption: that trial is unfinished
+        missing = [k for k in RECORD_KEYS if k not in rec]
+        if missing:
+            raise InputError(f"{log}: a record lacks {', '.join(missing)}; is it a trial log?")
+        records[rec["trial"]] = rec
+    return json.loads(meta.read_text()), records
+
+
+def _draw(config: dict[str, Any]) -> dict[str, Any]:
+    """What fixes a folder's trial set (a folder without ``trial_set`` predates version 2)."""
+    return {k: config.get(k) for k in ("scenario", "seed")} | {
+        "trial_set": config.get("trial_set", 1)
+    }
+
+
+def _same_trial(ra: dict[str, Any], rb: dict[str, Any]) -> bool:
+    return ra["reset_seed"] == rb["reset_seed"] and all(
+        np.shape(ra[k]) == np.shape(rb[k]) and np.allclose(ra[k], rb[k], rtol=0, atol=1e-6)
+        for k in ("start", "goal")
+    )
+
+
+def compare_trials(
+    a: str | Path, b: str | Path, *, tolerance: str = "tight", n: int | None = None
+) -> dict[str, Any]:
+    """Compare two trial folders pair by pair over the trials both hold, or the first ``n``.
+
+    Args:
+        a, b: folders written by ``se3push trials --out`` with the same scenario and seed.
+        tolerance: "tight" (2 cm, 10°) or "loose" (5 cm, 20°) success.
+        n: compare trials 0..n-1 (both folders must hold them); None: every trial both hold.
+
+    Returns:
+        :func:`paired_stats` of the outcomes, plus ``a``, ``b`` (folders), ``tolerance``,
+        ``tolerance_m_deg``, ``trials`` (the paired indices) and per folder the medians over
+        those trials of ``steps`` and ``replan_ms_median`` (``median_steps_a``,
+        ``median_replan_ms_a``, ... ; None where a record lacks the figure).
+
+    Raises:
+        InputError: a folder is not a trial folder, the two hold different trials, they share
+            none, a folder lacks one of the first ``n``, or a bad ``tolerance`` or ``n``.
+    """
+    if tolerance not in TOLERANCES:
+        raise InputError(f"--tolerance must be one of {', '.join(TOLERANCES)}, got {tolerance!r}")
+    if n is not None and n < 1:
+        raise InputError(f"--n must be positive, got {n}")
+    (config_a, recs_a), (config_b, recs_b) = read_trials(a), read_trials(b)
+    drawn = differences(_draw(config_a), _draw(config_b), old_has="A has", new_has="B has")
+    if drawn:
+        raise InputError(
+            f"{a} and {b} hold different trial sets ({'; '.join(drawn)}); compare folders run "
+            "with the same --scenario and --seed (and the same trial_set: rerun the older one)"
+        )
+    if n is None:
+        trials = sorted(recs_a.keys() & recs_b.keys())
+        if not trials:
+            raise InputError(f"{a} and {b} share no finished trials; run both with --n")
+    else:
+        trials = list(range(n))
+        for folder, recs in ((a, recs_a), (b, recs_b)):
+            held = sum(i in recs for i in trials)
+            if held < n:
+                raise InputError(
+                    f"{folder} holds {held} of the first {n} trials; finish it with "
+                    f"`se3push trials --n {n} --out {folder}` (same settings) or ask for less --n"
+                )
+    unlike = [i for i in trials if not _same_trial(recs_a[i], recs_b[i])]
+    if unlike:
+        i = unlike[0]
+        ka, kb = ({k: recs[i][k] for k in SAME_TRIAL_KEYS} for recs in (recs_a, recs_b))
+        raise InputError(
+            f"{a} and {b} hold different trials ({len(unlike)} of {len(trials)} differ; trial "
+            f"{i}: {'; '.join(differences(ka, kb, old_has='A has', new_has='B has'))}); "
+            "compare folders run with the same --scenario, --seed and trial draw"
+        )
+    key = f"success_{tolerance}"
+    stats = paired_stats([recs_a[i][key] for i in trials], [recs_b[i][key] for i in trials])
+    out = {"a": str(a), "b": str(b), "tolerance": tolerance}
+    out |= {"tolerance_m_deg": list(TOLERANCES[tolerance]), "trials": trials, **stats}
+    for side, recs in (("a", recs_a), ("b", recs_b)):
+        out[f"median_steps_{side}"] = _median([recs[i].get("steps") for i in trials])
+        out[f"median_replan_ms_{side}"] = _median([recs[i].get("replan_ms_median") for i in trials])
+    return out
+
+
+def _median(values: list[float | None]) -> float | None:
+    """Median, or None where a record lacks the figure."""
+    return None if None in values else float(np.median(values))
+
+
+def format_comparison(c: dict[str, Any]) -> str:
+    """Three lines of a :func:`compare_trials` result, for the terminal."""
+    metres, degrees = c["tolerance_m_deg"]
+    n, (lo, hi), p = c["n"], c["difference_ci95"], c["p_value"]
+    p_text = "p < 0.001" if p < 0.001 else f"p = {p:.2g}"
+    lines = [
+        f"A: {c['a']}  B: {c['b']}  ({n} paired trials, {c['tolerance']}: "
+        f"{metres * 100:g} cm & {degrees:g}°)",
+        f"success A {c['successes_a']}/{n} ({c['successes_a'] / n:.0%}), "
+        f"B {c['successes_b']}/{n} ({c['successes_b'] / n:.0%}); "
+        f"A wins {c['wins']}, loses {c['losses']}; exact McNemar {p_text}; "
+        f"difference {c['difference'] * 100:+.0f} points "
+        f"[95 % CI {lo * 100:+.0f} to {hi * 100:+.0f}]",
+    ]
+    lines.append(
+        f"median steps A {fmt(c['median_steps_a'], '.0f')}, B {fmt(c['median_steps_b'], '.0f')}; "
+        f"median replan A {fmt(c['median_replan_ms_a'], '.0f')} ms, "
+        f"B {fmt(c['median_replan_ms_b'], '.0f')} ms"
+    )
+    return "\n".join(lines)
