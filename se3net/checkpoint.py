@@ -19,7 +19,7 @@ from typing import Any
 
 import torch
 
-from scenarios import Scenario
+from scenarios import InputError, Scenario
 from se3net.model import ModelConfig, build_model
 from sim.dataset import CONTROL_LAYOUT, code_version, differences
 from sim.shards import atomic_write_bytes
@@ -29,7 +29,7 @@ DEFAULT_MODEL = Path(__file__).parent / "weights" / "default.pt"
 """the shipped se3net model (single_box)"""
 
 
-class CheckpointError(ValueError):
+class CheckpointError(InputError):
     """A checkpoint is missing, damaged, or does not fit the scenario or the code."""
 
 

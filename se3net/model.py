@@ -25,6 +25,7 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
+from scenarios import InputError
 from se3net.se3 import params_to_transform
 
 VARIANTS = ("se3net", "se3net-large", "no-penalty", "flow", "flow-large")
@@ -55,14 +56,14 @@ class ModelConfig:
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
-            raise ValueError(f"unknown variant {self.variant!r}; known: {', '.join(VARIANTS)}")
+            raise InputError(f"unknown variant {self.variant!r}; known: {', '.join(VARIANTS)}")
         div = 32 if self.large else 16
         if self.height % div or self.width % div:
-            raise ValueError(f"{self.variant} needs height and width divisible by {div}")
+            raise InputError(f"{self.variant} needs height and width divisible by {div}")
         if self.k < 1 or self.control_dim < 1:
-            raise ValueError("k and control_dim must be positive")
+            raise InputError("k and control_dim must be positive")
         if self.pivot not in ("centroid", "origin"):
-            raise ValueError(f"pivot must be 'centroid' or 'origin', got {self.pivot!r}")
+            raise InputError(f"pivot must be 'centroid' or 'origin', got {self.pivot!r}")
 
     @property
     def large(self) -> bool:

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from scenarios import InputError
 from se3net.checkpoint import manifest_hash, read_checkpoint, save_checkpoint
 from se3net.data import PushDataset
 from se3net.metrics import FlowStats, point_loss
@@ -79,15 +80,15 @@ class TrainConfig:
     def __post_init__(self) -> None:
         for name in ("iters", "batch", "eval_every", "val_examples", "horizon", "rollout_steps"):
             if getattr(self, name) < 1:
-                raise ValueError(
+                raise InputError(
                     f"--{name.replace('_', '-')} must be positive, got {getattr(self, name)}"
                 )
         if not self.lr > 0:
-            raise ValueError(f"--lr must be positive, got {self.lr}")
+            raise InputError(f"--lr must be positive, got {self.lr}")
         if not 0.0 <= self.later_fraction < 1.0:
-            raise ValueError(f"--later-fraction must be in [0, 1), got {self.later_fraction}")
+            raise InputError(f"--later-fraction must be in [0, 1), got {self.later_fraction}")
         if self.later_fraction > 0 and isinstance(self.data, str | Path):
-            raise ValueError("--later-fraction needs more than one --data folder")
+            raise InputError("--later-fraction needs more than one --data folder")
 
 
 def planner_controls(u: torch.Tensor, dt: float) -> torch.Tensor:
@@ -236,12 +237,12 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
         state = blob["train_state"]
         if state["config"] != asdict(cfg):
             diffs = differences(state["config"], asdict(cfg), old_has="the run has")
-            raise ValueError(
+            raise InputError(
                 f"--resume with other settings than the run's ({'; '.join(diffs)}); "
                 "use the original ones"
             )
         if blob["data_hash"] != data_hash:
-            raise ValueError(
+            raise InputError(
                 f"--resume with other data than the run was trained on ({cfg.data} changed)"
             )
         model.load_state_dict(blob["state_dict"])

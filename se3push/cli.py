@@ -1,7 +1,9 @@
 """Command line: ``se3push <command>`` and ``plan-push``.
 
-Each command parses its arguments, builds its config and calls one library function. Errors
-the user can fix (a bad scenario, a bad argument) are printed as one line and give exit code 2.
+Each command parses its arguments, builds its config and calls one library function. Input
+that was checked and refused (``scenarios.InputError``: a bad scenario, argument, file or
+folder) is printed as one line and gives exit code 2; any other exception is a bug and shows
+its traceback (exit code 1).
 """
 
 from __future__ import annotations
@@ -11,17 +13,11 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from scenarios import ScenarioError
-from sim import ActionError
+from scenarios import InputError
 
-USER_ERRORS = (
-    ScenarioError,
-    ActionError,
-    FileNotFoundError,
-    FileExistsError,
-    PermissionError,
-    ValueError,
-)
+USER_ERRORS = (InputError, FileNotFoundError, FileExistsError, PermissionError)
+"""refused input (ScenarioError, ActionError, DataError, CheckpointError are InputErrors) and
+the OS's word on the user's paths"""
 
 
 def _cmd_scenarios(args: argparse.Namespace) -> int:
@@ -56,7 +52,7 @@ def _cmd_data(args: argparse.Namespace) -> int:
     from sim.datastore import summarize
 
     if args.episodes is None:
-        raise ValueError("--episodes is required to generate data (or give --inspect DIR)")
+        raise InputError("--episodes is required to generate data (or give --inspect DIR)")
     cfg = DataConfig(
         scenario=args.scenario,
         episodes=args.episodes,

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from scenarios import CameraConfig
+from scenarios import CameraConfig, InputError
 from sim.mjcf import CAMERA_GROUP
 
 
@@ -23,7 +23,9 @@ def look_at(position_m: np.ndarray, target_m: np.ndarray) -> np.ndarray:
     z = target_m - position_m
     norm = np.linalg.norm(z)
     if norm < 1e-9:
-        raise ValueError("camera position and target coincide; move the target")
+        raise InputError(
+            "camera position_m and target_m coincide; move the target (camera.target_m)"
+        )
     z /= norm
     x = np.cross(z, [0.0, 0.0, 1.0])
     if np.linalg.norm(x) < 1e-6:  # looking straight up or down: image x along world -y

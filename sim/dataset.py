@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from scenarios import Scenario, load_scenario
+from scenarios import InputError, Scenario, load_scenario
 from sim.camera import associated_targets
 from sim.explore import MODES, ExplorationConfig, ExplorationPolicy, describe_exploration
 from sim.shards import DataError, atomic_write_json, sha256, write_shard
@@ -62,7 +62,7 @@ class DataConfig:
     def __post_init__(self) -> None:
         for name in ("episodes", "steps_per_episode", "episodes_per_shard"):
             if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)}")
+                raise InputError(f"{name} must be a positive integer, got {getattr(self, name)}")
 
     @property
     def n_shards(self) -> int:
@@ -338,7 +338,7 @@ def generate(
     from tqdm import tqdm
 
     if workers < 1:
-        raise ValueError(f"--workers must be at least 1, got {workers}")
+        raise InputError(f"--workers must be at least 1, got {workers}")
     scenario = load_scenario(cfg.scenario)
     out_dir = Path(out_dir)
     manifest = open_folder(out_dir, identity(cfg, scenario))

@@ -17,10 +17,12 @@ from typing import Any
 
 import numpy as np
 
+from scenarios import InputError
+
 FIXED_TIME = (1980, 1, 1, 0, 0, 0)
 
 
-class DataError(ValueError):
+class DataError(InputError):
     """A dataset folder or file is missing, mismatched, truncated or corrupted."""
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from scenarios import Scenario
+from scenarios import InputError, Scenario
 from sim.camera import DepthCamera, associated_targets, invert, transform_by_part
 from sim.controller import PusherIK
 from sim.mjcf import ARM_JOINTS, PUSHER_BODY, PUSHER_SITE, ObjectSpec, build_mjcf, object_body
@@ -29,7 +29,7 @@ SETTLE_S = 0.1
 MAX_SPEED_STABLE_M_S = 5.0
 
 
-class ActionError(ValueError):
+class ActionError(InputError):
     """An action was malformed, not finite, or outside the scenario's bounds."""
 
 
@@ -73,7 +73,12 @@ def yaw_of(R: np.ndarray) -> float:
 
 def planar_arm_ik(scenario: Scenario, xy_m: tuple[float, float] | np.ndarray) -> np.ndarray:
     """Joint angles (4,) that put the pusher tip at ``xy_m`` at its working height, vertical,
-    elbow up. Raises ValueError if the point is out of reach."""
+    elbow up.
+
+    Raises:
+        InputError: the point is out of reach (a scenario's ``arm.start_xy_m``, or a region
+            the arm cannot cover).
+    """
     a = scenario.arm
     l1, l2 = a.link_lengths_m
     dx, dy = xy_m[0] - a.base_xy_m[0], xy_m[1] - a.base_xy_m[1]
@@ -81,7 +86,13 @@ def planar_arm_ik(scenario: Scenario, xy_m: tuple[float, float] | np.ndarray) ->
     down = a.shoulder_height_m - (a.pusher_clearance_m + a.pusher_length_m)  # wrist below shoulder
     c2 = (r * r + down * down - l1 * l1 - l2 * l2) / (2 * l1 * l2)
     if not -1.0 <= c2 <= 1.0:
-        raise ValueError(f"pusher position {tuple(xy_m)} is out of the arm's reach")
+        lo = math.sqrt(max((l1 - l2) ** 2 - down**2, 0.0))
+        hi = math.sqrt(max((l1 + l2) ** 2 - down**2, 0.0))
+        raise InputError(
+            f"scenario {scenario.name}: pusher position {tuple(map(float, xy_m))} is out of the "
+            f"arm's reach ({lo:.3f}-{hi:.3f} m from arm.base_xy_m {tuple(a.base_xy_m)}, it is "
+            f"{r:.3f} m); move arm.start_xy_m or objects.region_m within it"
+        )
     p2 = math.acos(c2)
     p1 = math.atan2(down, r) - math.atan2(l2 * math.sin(p2), l1 + l2 * math.cos(p2))
     return np.array([math.atan2(dy, dx), p1, p2, -(p1 + p2)])
@@ -157,7 +168,7 @@ class PushWorld:
                 poses.append((float(x), float(y), float(yaw)))
             if len(poses) == len(self.objects):
                 return poses
-        raise ValueError(
+        raise InputError(
             f"scenario {self.scenario.name}: could not place {len(self.objects)} objects without "
             "overlap in objects.region_m; enlarge the region or lower objects.min_gap_m"
         )
@@ -215,8 +226,8 @@ class PushWorld:
         """Put the arm, at rest, in the configuration that holds the pusher at ``xy_m``.
 
         Meant for the start of an episode (data generation starts pushes near the objects);
-        the objects are not touched. Raises ValueError if ``xy_m`` is out of reach or
-        overlaps an object.
+        the objects are not touched. Raises InputError if ``xy_m`` is out of reach (see
+        :func:`planar_arm_ik`), ValueError if it overlaps an object (the caller's mistake).
         """
         if self.model is None:
             raise EpisodeEnded("no episode yet: call reset(seed) first")

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 import se3net.train as train_mod
-from scenarios import load_scenario
+from scenarios import InputError, load_scenario
 from se3net.checkpoint import CheckpointError, load_checkpoint, read_checkpoint
 from se3net.data import PushDataset
 from se3net.evaluate import evaluate
@@ -73,7 +73,7 @@ def test_resume_gives_the_same_weights_as_an_uninterrupted_run(tiny_data, tmp_pa
         assert torch.equal(a["state_dict"][k], b["state_dict"][k]), k
     lines = [json.loads(x) for x in (tmp_path / "b" / "metrics.jsonl").read_text().splitlines()]
     assert [x["iteration"] for x in lines] == [4, 8]
-    with pytest.raises(ValueError, match="other settings"):
+    with pytest.raises(InputError, match="other settings"):
         train(_cfg(tiny_data, tmp_path / "b", lr=0.5), resume=True, progress=False)
 
 
@@ -127,9 +127,9 @@ def test_mismatched_checkpoints_are_refused(tiny_data, tmp_path):
 
 
 def test_bad_training_settings_are_refused(tiny_data, tmp_path):
-    with pytest.raises(ValueError, match="--iters must be positive"):
+    with pytest.raises(InputError, match="--iters must be positive"):
         _cfg(tiny_data, tmp_path, iters=0)
-    with pytest.raises(ValueError, match="unknown variant"):
+    with pytest.raises(InputError, match="unknown variant"):
         train(_cfg(tiny_data, tmp_path, variant="huge"), progress=False)
     with pytest.raises(FileNotFoundError, match="nothing to resume"):
         train(_cfg(tiny_data, tmp_path / "fresh"), resume=True, progress=False)
@@ -225,9 +225,9 @@ def test_later_fraction_draws_that_share_of_each_batch_from_the_later_folders(ti
         [draw_batch(ds, _cfg(tiny_data, tmp_path, data=both, batch=8), rng) for _ in range(50)]
     )
     assert 140 < (ds.source[uniform] == 1).sum() < 260
-    with pytest.raises(ValueError, match="more than one --data folder"):
+    with pytest.raises(InputError, match="more than one --data folder"):
         _cfg(tiny_data, tmp_path, later_fraction=0.5)
-    with pytest.raises(ValueError, match=r"--later-fraction must be in \[0, 1\)"):
+    with pytest.raises(InputError, match=r"--later-fraction must be in \[0, 1\)"):
         _cfg(tiny_data, tmp_path, data=both, later_fraction=1.0)
 
 

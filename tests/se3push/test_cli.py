@@ -6,7 +6,12 @@ from pathlib import Path
 
 import pytest
 
+import scenarios
+from scenarios import InputError, ScenarioError
+from se3net.checkpoint import CheckpointError
 from se3push.cli import main
+from sim import ActionError
+from sim.shards import DataError
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -194,6 +199,32 @@ def test_study_improve_and_rollout_bad_input_is_exit_code_2(
         ["--scenario", "tiny"] if args[0] != "train" else [])]) == 2  # fmt: skip
     assert message in capsys.readouterr().err
     assert not (tmp_path / "i").exists()  # improve refuses before writing anything
+
+
+def test_an_unexpected_error_inside_a_command_shows_its_traceback(monkeypatch):
+    def boom():
+        raise ValueError("boom")
+
+    monkeypatch.setattr(scenarios, "list_scenarios", boom)
+    with pytest.raises(ValueError, match="boom"):  # a bug, not bad input: no exit code 2
+        main(["scenarios"])
+
+
+def test_refused_input_of_every_package_is_an_input_error():
+    for error in (ScenarioError, ActionError, DataError, CheckpointError):
+        assert issubclass(error, InputError), error
+
+
+@pytest.mark.parametrize(
+    "error", [InputError, ScenarioError, ActionError, DataError, CheckpointError, FileNotFoundError]
+)
+def test_refused_input_is_one_line_and_exit_code_2(error, monkeypatch, capsys):
+    def refuse():
+        raise error("what was wrong; what to do")
+
+    monkeypatch.setattr(scenarios, "list_scenarios", refuse)
+    assert main(["scenarios"]) == 2
+    assert capsys.readouterr().err == "error: what was wrong; what to do\n"
 
 
 def test_bench_planner_writes_every_pair(tmp_path):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import sim.dataset as dataset
-from scenarios import ScenarioError, load_scenario
+from scenarios import InputError, ScenarioError, load_scenario
 from sim import PushWorld
 from sim.dataset import DataConfig, generate
 from sim.datastore import read_manifest, split_of, summarize
@@ -110,8 +110,10 @@ def test_non_dataset_folder_and_unwritable_folder_are_refused(tmp_path):
 def test_unknown_scenario_and_bad_counts_are_refused(tmp_path):
     with pytest.raises(ScenarioError, match="unknown scenario"):
         generate(DataConfig("nope", episodes=1), tmp_path, progress=False)
-    with pytest.raises(ValueError, match="episodes must be a positive integer"):
+    with pytest.raises(InputError, match="episodes must be a positive integer"):
         DataConfig("tiny", episodes=0)
+    with pytest.raises(InputError, match="--workers must be at least 1"):
+        generate(DataConfig("tiny", episodes=1), tmp_path, workers=0, progress=False)
 
 
 def test_stored_episode_replays_to_the_same_world(reference):

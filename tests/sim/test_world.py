@@ -4,6 +4,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from scenarios import InputError
 from sim import ActionError, EpisodeEnded, PushWorld, associated_targets
 from sim.camera import invert
 from tests.conftest import with_fields
@@ -141,5 +142,5 @@ def test_object_off_the_table_ends_the_episode(tiny_world):
 
 
 def test_unreachable_start_is_reported(tiny):
-    with pytest.raises(ValueError, match="out of the arm's reach"):
+    with pytest.raises(InputError, match=r"out of the arm's reach .*move arm\.start_xy_m"):
         PushWorld(with_fields(tiny, "arm", start_xy_m=(0.5, 0.0))).reset(0)
