@@ -20,6 +20,7 @@ from typing import Any
 import torch
 
 from scenarios import InputError, Scenario
+from se3net.device import check_device
 from se3net.model import ModelConfig, build_model
 from sim.dataset import CONTROL_LAYOUT, code_version, differences
 from sim.shards import atomic_write_bytes
@@ -119,10 +120,13 @@ def load_checkpoint(
         scenario: if given, the checkpoint must have been trained on data whose camera and
             action settings match it.
         variant: if given, the checkpoint must be of this variant.
+        device: where the model goes (checked with ``se3net.device.check_device``).
 
     Raises:
         CheckpointError: missing, unreadable, or mismatched, with what differs.
+        InputError: ``device`` does not exist on this machine.
     """
+    device = check_device(device)
     blob = read_checkpoint(path)
     cfg = ModelConfig(**blob["model"])
     if variant is not None and cfg.variant != variant:

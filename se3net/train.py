@@ -27,6 +27,7 @@ import torch
 from scenarios import InputError
 from se3net.checkpoint import manifest_hash, read_checkpoint, save_checkpoint
 from se3net.data import PushDataset
+from se3net.device import check_device
 from se3net.metrics import FlowStats, point_loss
 from se3net.model import ModelConfig, build_model, sharpening
 from sim.dataset import differences
@@ -60,7 +61,7 @@ class TrainConfig:
     seed: int = 0
     """seed of initialisation, batch sampling and sharpening noise"""
     device: str = "cpu"
-    """torch device"""
+    """torch device (cpu, cuda, cuda:N, mps), checked to exist"""
     k: int = 4
     """number of masks (SE3-Net variants)"""
     eval_every: int = 250
@@ -89,6 +90,7 @@ class TrainConfig:
             raise InputError(f"--later-fraction must be in [0, 1), got {self.later_fraction}")
         if self.later_fraction > 0 and isinstance(self.data, str | Path):
             raise InputError("--later-fraction needs more than one --data folder")
+        check_device(self.device)
 
 
 def planner_controls(u: torch.Tensor, dt: float) -> torch.Tensor:

@@ -123,8 +123,10 @@ def bench_planner(*, repeats: int, flow_model: str | None = None, device: str = 
 
     from planner import PLANNERS, PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
     from scenarios import load_scenario
+    from se3net.device import check_device
     from sim import PushWorld
 
+    check_device(device)  # before anything is timed
     scenario = load_scenario("single_box")
     world = PushWorld(scenario)
     obs = world.reset(3)

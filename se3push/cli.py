@@ -241,7 +241,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--lr", type=float, default=1e-3)
     s.add_argument("--horizon", type=int, default=1, help="prediction horizon in control steps")
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--device", default="cpu", help="cpu or cuda")
+    s.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or mps")
     s.add_argument("--k", type=int, default=4, help="number of masks (SE3-Net variants)")
     s.add_argument("--eval-every", type=int, default=250, help="iterations between validations")
     s.add_argument("--keep-every", type=int, default=0, help="keep a checkpoint every N iterations")

@@ -5,11 +5,12 @@ import zipfile
 from pathlib import Path
 
 import pytest
+import torch
 
 import scenarios
 from scenarios import InputError, ScenarioError
 from se3net.checkpoint import CheckpointError
-from se3push.cli import main
+from se3push.cli import main, plan_push_main
 from sim import ActionError
 from sim.shards import DataError
 
@@ -225,6 +226,30 @@ def test_refused_input_is_one_line_and_exit_code_2(error, monkeypatch, capsys):
     monkeypatch.setattr(scenarios, "list_scenarios", refuse)
     assert main(["scenarios"]) == 2
     assert capsys.readouterr().err == "error: what was wrong; what to do\n"
+
+
+@pytest.mark.parametrize(
+    "device, message",
+    [
+        ("cuda", "CUDA is not available on this machine"),
+        ("cuda:9", "CUDA is not available on this machine"),
+        ("gpu7", "unknown device 'gpu7'"),
+        ("nonsense", "unknown device 'nonsense'"),
+    ],
+)
+def test_a_device_this_machine_lacks_is_exit_code_2(
+    device, message, tiny_data, tmp_path, monkeypatch, capsys
+):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    run = tmp_path / "run"
+    args = ["train", "--data", str(tiny_data), "--out", str(run), "--device", device]
+    assert main(args) == 2
+    assert message in capsys.readouterr().err
+    assert not run.exists()
+    assert plan_push_main(["--goal", "0.1", "0", "0", "--device", device]) == 2
+    assert message in capsys.readouterr().err
+    assert main(["bench", "planner", "--repeats", "1", "--device", device]) == 2
+    assert message in capsys.readouterr().err
 
 
 def test_bench_planner_writes_every_pair(tmp_path):
