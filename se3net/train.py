@@ -56,8 +56,6 @@ class TrainConfig:
     """peak learning rate (cosine decay to 5 %)"""
     weight_decay: float = 1e-4
     """Adam weight decay"""
-    horizon: int = 1
-    """prediction horizon in control steps"""
     seed: int = 0
     """seed of initialisation, batch sampling and sharpening noise"""
     device: str = "cpu"
@@ -79,7 +77,7 @@ class TrainConfig:
     data, a small pool beside the exploration data); 0: every example equally likely"""
 
     def __post_init__(self) -> None:
-        for name in ("iters", "batch", "eval_every", "val_examples", "horizon", "rollout_steps"):
+        for name in ("iters", "batch", "eval_every", "val_examples", "rollout_steps"):
             if getattr(self, name) < 1:
                 raise InputError(
                     f"--{name.replace('_', '-')} must be positive, got {getattr(self, name)}"
@@ -214,9 +212,8 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
     if resume and not last.exists():
         raise FileNotFoundError(f"nothing to resume: {last} does not exist")
     torch.manual_seed(cfg.seed)
-    horizon = max(cfg.horizon, cfg.rollout_steps)
-    ds = PushDataset(cfg.data, split="train", horizon=horizon)
-    val = PushDataset(cfg.data, split="val", horizon=horizon)
+    ds = PushDataset(cfg.data, split="train", horizon=cfg.rollout_steps)
+    val = PushDataset(cfg.data, split="val", horizon=cfg.rollout_steps)
     dt = ds.scenario.action.dt_control_s
     data_hash = "+".join(manifest_hash(m) for m in ds.manifests)
     cam = ds.scenario.camera
@@ -237,8 +234,11 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
     if resume:
         blob = read_checkpoint(last)
         state = blob["train_state"]
-        if state["config"] != asdict(cfg):
-            diffs = differences(state["config"], asdict(cfg), old_has="the run has")
+        run_cfg = dict(state["config"])
+        if run_cfg.get("horizon") == 1:  # a setting of old runs that changed nothing at 1
+            del run_cfg["horizon"]
+        if run_cfg != asdict(cfg):
+            diffs = differences(run_cfg, asdict(cfg), old_has="the run has")
             raise InputError(
                 f"--resume with other settings than the run's ({'; '.join(diffs)}); "
                 "use the original ones"

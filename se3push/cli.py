@@ -75,7 +75,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     data = args.data[0] if len(args.data) == 1 else tuple(args.data)
     cfg = TrainConfig(
         data=data, out=args.out, variant=args.variant, iters=args.iters, batch=args.batch,
-        lr=args.lr, horizon=args.horizon, seed=args.seed, device=args.device, k=args.k,
+        lr=args.lr, seed=args.seed, device=args.device, k=args.k,
         eval_every=args.eval_every, keep_every=args.keep_every,
         rollout_steps=args.rollout_steps, init=args.init, later_fraction=args.later_fraction,
     )  # fmt: skip
@@ -239,7 +239,6 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--iters", type=int, default=6000)
     s.add_argument("--batch", type=int, default=32)
     s.add_argument("--lr", type=float, default=1e-3)
-    s.add_argument("--horizon", type=int, default=1, help="prediction horizon in control steps")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or mps")
     s.add_argument("--k", type=int, default=4, help="number of masks (SE3-Net variants)")

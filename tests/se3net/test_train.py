@@ -231,6 +231,25 @@ def test_later_fraction_draws_that_share_of_each_batch_from_the_later_folders(ti
         _cfg(tiny_data, tmp_path, data=both, later_fraction=1.0)
 
 
+def test_runs_have_no_horizon_setting_and_old_runs_with_the_inert_one_resume(tiny_data, tmp_path):
+    """The loss's horizon is ``rollout_steps``; old runs stored a ``horizon`` that at 1 changed
+    nothing, so they resume; any other value is refused."""
+    cfg = _cfg(tiny_data, tmp_path, iters=4)
+    train(cfg, progress=False)
+    last = tmp_path / "last.pt"
+    assert "horizon" not in read_checkpoint(last)["train_state"]["config"]
+    with pytest.raises(TypeError):
+        TrainConfig(data=str(tiny_data), out=str(tmp_path), horizon=2)
+    blob = read_checkpoint(last)
+    blob["train_state"]["config"]["horizon"] = 1
+    torch.save(blob, last)
+    train(cfg, resume=True, progress=False)
+    blob["train_state"]["config"]["horizon"] = 3
+    torch.save(blob, last)
+    with pytest.raises(InputError, match="other settings than the run's .*horizon: the run has 3"):
+        train(cfg, resume=True, progress=False)
+
+
 def test_checkpoints_of_like_named_runs_get_names_that_tell_them_apart(tmp_path):
     from se3net.evaluate import checkpoint_names
 
