@@ -32,7 +32,8 @@ class PushDataset(Dataset):
         root: dataset folder, or several (say exploration data and planner-visited data from
             ``se3push improve``): their episodes are pooled; they must share the scenario
             and the episode length.
-        split: ``"train"``, ``"val"`` or ``"test"``.
+        split: ``"train"``, ``"val"``, ``"test"``, or ``"all"`` (every episode: a dataset
+            made to be held out).
         horizon: h, the number of steps to predict (targets for every step 1..h).
         noise: depth and association noise (the scenario's ``NoiseConfig`` shape); None = off.
         seed: seed of the noise; item i's noise depends only on (seed, epoch, i).

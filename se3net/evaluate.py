@@ -1,9 +1,10 @@
 """Evaluation like the paper's Table 1, plus what the paper only showed as pictures.
 
-For each checkpoint, on the test split: one-step flow MSE (cm^2) beside the no-motion
-baseline's and its ratio; mask binariness and IoU with the true parts (SE3-Net variants);
-multi-step error when predictions are fed back as input for 1..5 steps. Results come back as
-data; ``table_markdown`` and ``save_pictures`` turn them into a table and PNGs.
+For each checkpoint, on the test split (or every episode of a held-out dataset): one-step
+flow MSE (cm^2) beside the no-motion baseline's and its ratio; mask binariness and IoU with
+the true parts (SE3-Net variants); multi-step error when predictions are fed back as input for
+1..5 steps. Results come back as data; ``table_markdown`` and ``save_pictures`` turn them
+into a table and PNGs.
 """
 
 from __future__ import annotations
@@ -24,11 +25,13 @@ MULTI_STEPS = 5
 
 @dataclass
 class EvalResult:
-    """Figures of one checkpoint on one dataset's test split."""
+    """Figures of one checkpoint on one dataset's test split (or all of it)."""
 
     name: str
     variant: str
     checkpoint: str
+    split: str
+    """the dataset's episodes used: ``test``, or ``all`` for a held-out dataset"""
     examples: int
     flow_mse: float
     """one-step flow MSE over moving points, cm^2"""
@@ -80,10 +83,12 @@ def evaluate_checkpoint(
     batch: int = 64,
     device: str = "cpu",
     name: str | None = None,
+    split: str = "test",
 ) -> EvalResult:
-    """Evaluate one checkpoint on the test split of ``data`` (``name``: its label, by default
+    """Evaluate one checkpoint on the test split of ``data`` (``split="all"``: on every
+    episode, for a dataset made to be held out; ``name``: its label, by default
     ``checkpoint_name``)."""
-    one = PushDataset(data, split="test", horizon=1)
+    one = PushDataset(data, split=split, horizon=1)
     model, blob = load_checkpoint(path, scenario=one.scenario, device=device)
     flow, masks = FlowStats(), MaskStats()
     idx = _subset(len(one), max_examples)
@@ -93,7 +98,7 @@ def evaluate_checkpoint(
         flow.add(pred.points, b["points"], b["target"][:, 0], b["target_valid"][:, 0])
         if pred.masks is not None:
             masks.add(pred.masks, b["part"], b["points"], b["target"][:, 0])
-    multi = PushDataset(data, split="test", horizon=MULTI_STEPS)
+    multi = PushDataset(data, split=split, horizon=MULTI_STEPS)
     steps = [FlowStats() for _ in range(MULTI_STEPS)]
     idx = _subset(len(multi), max_examples // 2)
     for s in range(0, len(idx), batch):
@@ -107,6 +112,7 @@ def evaluate_checkpoint(
         name=name or checkpoint_name(path),
         variant=blob["model"]["variant"],
         checkpoint=str(path),
+        split=split,
         examples=len(_subset(len(one), max_examples)),
         flow_mse=flow.mse_cm2,
         no_motion_mse=flow.no_motion_cm2,
@@ -149,8 +155,9 @@ def table_markdown(results: list[EvalResult], data: str) -> str:
             + f" | {nmk:.3f} |"
         )
     n = results[0].examples if results else 0
+    which = "All episodes" if results and results[0].split == "all" else "Test split"
     note = (
-        f"\nTest split of `{data}`, {n} one-step examples; flow MSE averages the squared error "
+        f"\n{which} of `{data}`, {n} one-step examples; flow MSE averages the squared error "
         "over points whose true flow is non-zero (> 0.1 mm) and that stay visible.\n"
     )
     return "\n".join([head, rule, *rows]) + "\n" + note
@@ -164,12 +171,13 @@ def save_pictures(
     *,
     n: int = 3,
     names: list[str] | None = None,
+    split: str = "test",
 ) -> list[Path]:
-    """For each checkpoint, a PNG of a few test examples where an object moves: true parts,
-    mask argmax (SE3-Nets), true and predicted flow magnitude, and the error."""
+    """For each checkpoint, a PNG of a few examples of ``split`` where an object moves: true
+    parts, mask argmax (SE3-Nets), true and predicted flow magnitude, and the error."""
     from sim.render import _pyplot, save_figure
 
-    ds = PushDataset(data, split="test", horizon=1)
+    ds = PushDataset(data, split=split, horizon=1)
     scan = _subset(len(ds), 400)
     sb = ds.batch(scan)
     obj_flow = (
@@ -214,7 +222,7 @@ def save_pictures(
                 im = ax.imshow(np.where(valid, img, np.nan), cmap=cmap, vmin=lo, vmax=hi)
                 if cmap == "magma":
                     fig.colorbar(im, ax=ax)
-        fig.suptitle(f"{name} ({blob['model']['variant']}): test examples")
+        fig.suptitle(f"{name} ({blob['model']['variant']}): {split} examples")
         out = Path(out_dir) / f"{name.replace('/', '_')}_examples.png"
         save_figure(fig, out)
         written.append(out)
@@ -222,21 +230,27 @@ def save_pictures(
 
 
 def evaluate(
-    paths: list[str | Path], data: str | Path, out_dir: str | Path, *, max_examples: int = 2000
+    paths: list[str | Path],
+    data: str | Path,
+    out_dir: str | Path,
+    *,
+    max_examples: int = 2000,
+    split: str = "test",
 ) -> list[EvalResult]:
-    """Evaluate checkpoints; write ``table.md``, ``eval.json`` and PNGs to ``out_dir``."""
+    """Evaluate checkpoints on the test split of ``data`` (``split="all"``: every episode);
+    write ``table.md``, ``eval.json`` and PNGs to ``out_dir``."""
     import json
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     names = checkpoint_names(paths)
     results = [
-        evaluate_checkpoint(p, data, max_examples=max_examples, name=name)
+        evaluate_checkpoint(p, data, max_examples=max_examples, name=name, split=split)
         for p, name in zip(paths, names, strict=True)
     ]
     (out_dir / "table.md").write_text(table_markdown(results, str(data)))
     (out_dir / "eval.json").write_text(
         json.dumps({r.name: r.to_dict() for r in results}, indent=1) + "\n"
     )
-    save_pictures(paths, data, out_dir, names=names)
+    save_pictures(paths, data, out_dir, names=names, split=split)
     return results

@@ -94,7 +94,9 @@ def _cmd_train(args: argparse.Namespace) -> int:
 def _cmd_eval(args: argparse.Namespace) -> int:
     from se3net.evaluate import evaluate, table_markdown
 
-    results = evaluate(args.checkpoints, args.data, args.out, max_examples=args.max_examples)
+    results = evaluate(
+        args.checkpoints, args.data, args.out, max_examples=args.max_examples, split=args.split
+    )
     print(table_markdown(results, args.data))
     print(f"wrote {args.out}/table.md, eval.json and example PNGs")
     return 0
@@ -262,6 +264,10 @@ def _parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("eval", help="the paper's Table 1 on a dataset's test split")
     s.add_argument("--data", required=True, help="dataset folder")
+    s.add_argument(
+        "--split", choices=["test", "all"], default="test",
+        help="the dataset's episodes to use: its test split, or all (a held-out dataset)",
+    )  # fmt: skip
     s.add_argument(
         "--checkpoints", nargs="+", required=True, help="checkpoint files ('default': shipped)"
     )

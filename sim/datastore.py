@@ -19,6 +19,7 @@ from sim.dataset import DATA_FORMAT, HIST_BIN_M, MANIFEST, NONZERO_FLOW_M
 from sim.shards import DataError, read_shard
 
 SPLITS = ("train", "val", "test")
+"""the splits of every dataset by episode; ``"all"`` names every episode (a held-out dataset)"""
 SPLIT_PERIOD = 20
 
 
@@ -65,10 +66,11 @@ class Episodes:
     """global episode index of each row"""
 
 
-def load_episodes(root: str | Path, split: str | None = None, *, verify: bool = True) -> Episodes:
-    """Read the shards of a dataset (checksums verified) and keep one split's episodes."""
-    if split is not None and split not in SPLITS:
-        raise ValueError(f"unknown split {split!r}; known: {', '.join(SPLITS)}")
+def load_episodes(root: str | Path, split: str = "all", *, verify: bool = True) -> Episodes:
+    """Read the shards of a dataset (checksums verified) and keep one split's episodes
+    (``"all"``: every episode)."""
+    if split not in (*SPLITS, "all"):
+        raise ValueError(f"unknown split {split!r}; known: {', '.join(SPLITS)}, all")
     root = Path(root)
     manifest = read_manifest(root)
     chunks: dict[str, list[np.ndarray]] = {}
@@ -77,7 +79,7 @@ def load_episodes(root: str | Path, split: str | None = None, *, verify: bool = 
             root / name, expected_sha256=manifest["shards"][name]["sha256"] if verify else None
         )
         keep = np.array(
-            [split is None or split_of(int(e)) == split for e in shard["episode_index"]]
+            [split == "all" or split_of(int(e)) == split for e in shard["episode_index"]]
         )
         for k, v in shard.items():
             chunks.setdefault(k, []).append(v[keep])

@@ -34,6 +34,16 @@ def test_splits_never_share_an_episode(root):
     assert len(seen["train"]) == 19
 
 
+def test_split_all_is_every_episode_of_train_val_and_test(root):
+    parts = [PushDataset(root, split=s) for s in ("train", "val", "test")]
+    every = PushDataset(root, split="all")
+    assert sorted(int(e) for e in every.episode_index) == sorted(
+        int(e) for ds in parts for e in ds.episode_index
+    )
+    assert sorted(int(e) for e in every.episode_index) == list(range(21))
+    assert len(every) == sum(len(ds) for ds in parts)
+
+
 def _fresh_observations(episode: int):
     """Simulate an episode afresh with the stored actions."""
     s = load_scenario("tiny")
