@@ -19,6 +19,7 @@ import torch
 from se3net.checkpoint import DEFAULT_MODEL, load_checkpoint
 from se3net.data import PushDataset
 from se3net.metrics import FlowStats, MaskStats
+from sim.shards import portable_path
 
 MULTI_STEPS = 5
 
@@ -30,6 +31,7 @@ class EvalResult:
     name: str
     variant: str
     checkpoint: str
+    """the checkpoint's path, relative to the current directory if under it"""
     split: str
     """the dataset's episodes used: ``test``, or ``all`` for a held-out dataset"""
     examples: int
@@ -111,7 +113,7 @@ def evaluate_checkpoint(
     return EvalResult(
         name=name or checkpoint_name(path),
         variant=blob["model"]["variant"],
-        checkpoint=str(path),
+        checkpoint=portable_path(path),
         split=split,
         examples=len(_subset(len(one), max_examples)),
         flow_mse=flow.mse_cm2,
@@ -238,7 +240,8 @@ def evaluate(
     split: str = "test",
 ) -> list[EvalResult]:
     """Evaluate checkpoints on the test split of ``data`` (``split="all"``: every episode);
-    write ``table.md``, ``eval.json`` and PNGs to ``out_dir``."""
+    write ``table.md``, ``eval.json`` and PNGs to ``out_dir``. Paths under the current
+    directory are recorded relative to it."""
     import json
 
     out_dir = Path(out_dir)
@@ -248,7 +251,7 @@ def evaluate(
         evaluate_checkpoint(p, data, max_examples=max_examples, name=name, split=split)
         for p, name in zip(paths, names, strict=True)
     ]
-    (out_dir / "table.md").write_text(table_markdown(results, str(data)))
+    (out_dir / "table.md").write_text(table_markdown(results, portable_path(data)))
     (out_dir / "eval.json").write_text(
         json.dumps({r.name: r.to_dict() for r in results}, indent=1) + "\n"
     )

@@ -54,6 +54,19 @@ def atomic_write_json(path: Path, obj: Any) -> None:
     atomic_write_bytes(Path(path), (json.dumps(obj, indent=1, sort_keys=True) + "\n").encode())
 
 
+def portable_path(path: str | Path) -> str:
+    """``path`` as results should record it: relative to the current directory when it lies
+    under it (so no machine's folders end up in committed results), else as given."""
+    p = Path(path)
+    if not p.is_absolute():
+        return str(p)
+    cwd = Path.cwd()
+    for base, q in ((cwd, Path(os.path.normpath(p))), (cwd.resolve(), p.resolve())):
+        if q.is_relative_to(base):
+            return str(q.relative_to(base))
+    return str(path)
+
+
 def encode_arrays(arrays: dict[str, np.ndarray]) -> bytes:
     """The bytes of a compressed ``.npz`` holding ``arrays``, identical for identical input."""
     buf = io.BytesIO()

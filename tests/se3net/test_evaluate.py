@@ -1,3 +1,5 @@
+import json
+
 import pytest
 
 from se3net.data import PushDataset
@@ -13,6 +15,16 @@ def work(tiny_data, tmp_path_factory):
                       eval_every=2, val_examples=8, k=3)  # fmt: skip
     train(cfg, progress=False)
     return work
+
+
+def test_eval_records_a_checkpoint_under_the_cwd_relative_to_it(work, tiny_data, monkeypatch):
+    monkeypatch.chdir(work)
+    absolute = work / "runs" / "tiny" / "best.pt"
+    (result,) = evaluate([absolute], tiny_data, "eval", max_examples=8)
+    assert result.checkpoint == "runs/tiny/best.pt"
+    figures = json.loads((work / "eval" / "eval.json").read_text())
+    assert figures["tiny"]["checkpoint"] == "runs/tiny/best.pt"
+    assert str(work) not in (work / "eval" / "eval.json").read_text()
 
 
 def test_eval_on_all_episodes_uses_every_episode(work, tiny_data, tmp_path):
