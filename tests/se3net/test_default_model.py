@@ -32,5 +32,7 @@ def test_default_model_fits_single_box_and_beats_no_motion_on_unseen_episodes(un
     flow, masks = FlowStats(), MaskStats()
     flow.add(pred.points, b["points"], b["target"][:, 0], b["target_valid"][:, 0])
     masks.add(pred.masks, b["part"], b["points"], b["target"][:, 0])
-    assert flow.ratio < 0.25  # measured about 0.05 on the test split
-    assert masks.binariness > 0.85
+    # measured on these 60 examples: ratio 0.035, binariness 0.988 (non-binary share 0.012);
+    # each threshold leaves about a quarter of the measured value (of the share for binariness)
+    assert flow.ratio < 0.044
+    assert masks.binariness > 0.985
