@@ -57,7 +57,9 @@ class SQPPlanner(Planner):
     """Sequential quadratic programming (Gauss-Newton on the cost's residuals): linearise the
     rollout around the nominal sequence with autograd Jacobians, solve a trust-region QP with
     the box bounds (cvxpy on OSQP, compiled once as a parametrised problem), and accept a step
-    only if the true rollout cost drops (else halve the trust region)."""
+    only if the true rollout cost drops (else halve the trust region). A QP that OSQP cannot
+    solve (``cvxpy.SolverError``, its iteration limit, a non-optimal status) also halves it: a
+    solver failure never ends a closed loop."""
 
     name = "sqp"
 
@@ -79,6 +81,33 @@ class SQPPlanner(Planner):
         U = flat.view(1, self.cfg.horizon, 2)
         return self.cost.residuals(state, self.dynamics.rollout(state, U), U)[0]
 
+    def _jacobian(self, state: PlanState, flat: torch.Tensor) -> torch.Tensor:
+        """(m, n) Jacobian of the residuals with respect to the n = H*2 actions."""
+        # forward mode, vectorised: one batched pass for the few (H x 2) action inputs
+        return torch.autograd.functional.jacobian(
+            lambda x: self._residuals(state, x), flat, vectorize=True, strategy="forward-mode"
+        ).detach()
+
+    def _step(
+        self, J: np.ndarray, r0: np.ndarray, u: np.ndarray, radius: float
+    ) -> np.ndarray | None:
+        """The QP's step d (n,) inside the trust region and the action bounds, or None where
+        OSQP gives no solution (an error, its iteration limit, an infeasible status)."""
+        prob, Jp, rp, lo, hi, d = self._problem(*J.shape)
+        Jp.value, rp.value = J, r0
+        hi.value = np.minimum(self.bound - u, radius)
+        lo.value = np.minimum(np.maximum(-self.bound - u, -radius), hi.value)
+        try:
+            prob.solve(solver=cp.OSQP, warm_start=True, eps_abs=1e-7, eps_rel=1e-7)
+        except cp.SolverError:
+            return None
+        # at its iteration limit (status user_limit) OSQP's iterate may lie outside the box
+        if prob.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or d.value is None:
+            return None
+        if not np.all(np.isfinite(d.value)):
+            return None
+        return np.clip(d.value, lo.value, hi.value)  # an inaccurate solution's small violations
+
     def _optimise(self, state: PlanState, U0: torch.Tensor) -> tuple[torch.Tensor, int]:
         _require_gradients(self)
         c = self.cfg
@@ -88,23 +117,15 @@ class SQPPlanner(Planner):
         radius = c.trust_radius
         for _ in range(c.iterations):
             r0 = self._residuals(state, U).detach()
-            # forward mode, vectorised: one batched pass for the few (H x 2) action inputs
-            J = torch.autograd.functional.jacobian(
-                lambda x: self._residuals(state, x), U, vectorize=True, strategy="forward-mode"
-            ).detach()
+            J = self._jacobian(state, U)
             if not (torch.isfinite(J).all() and torch.isfinite(r0).all()):
                 radius *= 0.5  # a degenerate linearisation: try a smaller step
                 continue
-            prob, Jp, rp, lo, hi, d = self._problem(*J.shape)
-            u = U.double().numpy()
-            Jp.value, rp.value = J.double().numpy(), r0.double().numpy()
-            hi.value = np.minimum(self.bound - u, radius)
-            lo.value = np.minimum(np.maximum(-self.bound - u, -radius), hi.value)
-            prob.solve(solver=cp.OSQP, warm_start=True, eps_abs=1e-7, eps_rel=1e-7)
-            if d.value is None or not np.all(np.isfinite(d.value)):
-                radius *= 0.5
+            d = self._step(J.double().numpy(), r0.double().numpy(), U.double().numpy(), radius)
+            if d is None:
+                radius *= 0.5  # no solution: try a smaller region
                 continue
-            trial = self.clamp(U + torch.from_numpy(d.value).float())
+            trial = self.clamp(U + torch.from_numpy(d).float())
             with torch.no_grad():
                 trial_cost = float((self._residuals(state, trial) ** 2).sum())
             if trial_cost < cost:

@@ -1,5 +1,6 @@
 import dataclasses
 
+import cvxpy as cp
 import numpy as np
 import pytest
 import torch
@@ -73,3 +74,36 @@ def test_bad_settings_are_refused():
         PushCost(SCENARIO, (float("nan"), 0.0, 0.0))
     with pytest.raises(ValueError, match=r"off the table \(x in \[-0.3, 0.3\]"):
         PushCost(SCENARIO, (0.5, 0.0, 0.0))
+
+
+def test_sqp_goes_on_when_osqp_fails(monkeypatch):
+    solve, calls = cp.Problem.solve, []
+
+    def fails_once(self, *args, **kwargs):  # as OSQP does on a KKT matrix it cannot factorise
+        calls.append(1)
+        if len(calls) == 1:
+            raise cp.SolverError("Solver 'OSQP' failed.")
+        return solve(self, *args, **kwargs)
+
+    monkeypatch.setattr(cp.Problem, "solve", fails_once)
+    cost = PushCost(SCENARIO, torch.tensor((0.05, 0.02, 0.0)), TOY_COST)
+    planner = make_planner("sqp", CarriedDisk(DT), cost, SCENARIO, PlannerConfig(iterations=4))
+    state = toy_state()
+    with torch.no_grad():
+        rest, _ = planner.evaluate(state, torch.zeros(1, planner.cfg.horizon, 2))
+    _, info = planner.plan(state)  # the first QP fails: a smaller region, and on
+    assert len(calls) > 1 and info.cost < 0.9 * float(rest[0])
+
+
+def test_sqp_steps_stay_in_the_trust_region_when_osqp_stops_at_its_iteration_limit(monkeypatch):
+    solve = cp.Problem.solve
+
+    def capped(self, *args, **kwargs):  # its iterate then lies well outside the QP's box
+        return solve(self, *args, **{**kwargs, "max_iter": 10})
+
+    monkeypatch.setattr(cp.Problem, "solve", capped)
+    cost = PushCost(SCENARIO, torch.tensor((0.28, -0.28, 0.0)), TOY_COST)
+    cfg = PlannerConfig(iterations=1, trust_radius=0.01)
+    planner = make_planner("sqp", CarriedDisk(DT), cost, SCENARIO, cfg)
+    _, info = planner.plan(toy_state())  # one step from rest: within 0.01 m/s of it
+    assert np.abs(info.actions).max() <= cfg.trust_radius + 1e-6
