@@ -57,11 +57,19 @@ class SQPPlanner(Planner):
     """Sequential quadratic programming (Gauss-Newton on the cost's residuals): linearise the
     rollout around the nominal sequence with autograd Jacobians, solve a trust-region QP with
     the box bounds (cvxpy on OSQP, compiled once as a parametrised problem), and accept a step
-    only if the true rollout cost drops (else halve the trust region). A QP that OSQP cannot
-    solve (``cvxpy.SolverError``, its iteration limit, a non-optimal status) also halves it: a
-    solver failure never ends a closed loop."""
+    only if the true rollout cost drops.
+
+    The trust region (a box of half-width ``radius`` on each action change) follows the ratio
+    rho of the actual cost reduction to the QP's predicted one, |r0|^2 - |r0 + J d|^2 (Nocedal
+    & Wright, Numerical Optimization, Algorithm 4.1): rho > 0.75 with the step at the region's
+    edge doubles the radius (up to 2x the action bound, the width of the action box, where the
+    region stops binding); rho < 0.25 or a rejected step halves it. A QP that OSQP cannot solve
+    (``cvxpy.SolverError``, its iteration limit, a non-optimal status) also halves it: a solver
+    failure never ends a closed loop."""
 
     name = "sqp"
+    grow_above, shrink_below = 0.75, 0.25
+    """thresholds on the ratio of actual to predicted cost reduction"""
 
     def __init__(self, *args, **kwargs):
         self._problems: dict[tuple[int, int], tuple] = {}
@@ -116,22 +124,29 @@ class SQPPlanner(Planner):
             cost = float((self._residuals(state, U) ** 2).sum())
         radius = c.trust_radius
         for _ in range(c.iterations):
+            if radius < 1e-4 * self.bound or not math.isfinite(cost):
+                break
             r0 = self._residuals(state, U).detach()
             J = self._jacobian(state, U)
             if not (torch.isfinite(J).all() and torch.isfinite(r0).all()):
                 radius *= 0.5  # a degenerate linearisation: try a smaller step
                 continue
-            d = self._step(J.double().numpy(), r0.double().numpy(), U.double().numpy(), radius)
-            if d is None:
-                radius *= 0.5  # no solution: try a smaller region
+            Jd, rd = J.double().numpy(), r0.double().numpy()
+            d = self._step(Jd, rd, U.double().numpy(), radius)
+            predicted = -math.inf if d is None else float(rd @ rd - np.sum((rd + Jd @ d) ** 2))
+            if predicted <= 0:  # no solution, or none that the model expects to help
+                radius *= 0.5
                 continue
             trial = self.clamp(U + torch.from_numpy(d).float())
             with torch.no_grad():
                 trial_cost = float((self._residuals(state, trial) ** 2).sum())
-            if trial_cost < cost:
-                U, cost = trial, trial_cost
-            else:
+            if not trial_cost < cost:  # rejected (or not finite)
                 radius *= 0.5
-            if radius < 1e-4 * self.bound or not math.isfinite(cost):
-                break
+                continue
+            rho = (cost - trial_cost) / predicted
+            if rho > self.grow_above and np.abs(d).max() >= 0.99 * radius:
+                radius = min(2.0 * radius, 2.0 * self.bound)
+            elif rho < self.shrink_below:
+                radius *= 0.5
+            U, cost = trial, trial_cost
         return U.view(c.horizon, 2), c.iterations

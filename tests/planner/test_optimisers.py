@@ -107,3 +107,13 @@ def test_sqp_steps_stay_in_the_trust_region_when_osqp_stops_at_its_iteration_lim
     planner = make_planner("sqp", CarriedDisk(DT), cost, SCENARIO, cfg)
     _, info = planner.plan(toy_state())  # one step from rest: within 0.01 m/s of it
     assert np.abs(info.actions).max() <= cfg.trust_radius + 1e-6
+
+
+def test_sqp_trust_region_grows_after_good_steps():
+    goal = (0.12, -0.09, 0.0)  # the optimum saturates the actions (0.15 m/s)
+    cost = PushCost(SCENARIO, torch.tensor(goal), TOY_COST)
+    cfg = PlannerConfig(iterations=8, trust_radius=0.01)  # 8 steps of 0.01 could not get there
+    planner = make_planner("sqp", CarriedDisk(DT), cost, SCENARIO, cfg)
+    best = optimum(cost, toy_state(), cfg.horizon, DT, BOUND)
+    _, info = planner.plan(toy_state())
+    assert info.cost <= best * (1 + MARGIN["sqp"]) + 1e-3, (info.cost, best)
