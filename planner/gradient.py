@@ -65,7 +65,8 @@ class SQPPlanner(Planner):
     edge doubles the radius (up to 2x the action bound, the width of the action box, where the
     region stops binding); rho < 0.25 or a rejected step halves it. A QP that OSQP cannot solve
     (``cvxpy.SolverError``, its iteration limit, a non-optimal status) also halves it: a solver
-    failure never ends a closed loop."""
+    failure never ends a closed loop. Residuals and Jacobian are computed only at accepted
+    points: a rejected step costs one rollout, the trial's."""
 
     name = "sqp"
     grow_above, shrink_below = 0.75, 0.25
@@ -121,16 +122,17 @@ class SQPPlanner(Planner):
         c = self.cfg
         U = U0.flatten().clone()
         with torch.no_grad():
-            cost = float((self._residuals(state, U) ** 2).sum())
+            r0 = self._residuals(state, U)
+        cost = float((r0**2).sum())
+        J = None  # the Jacobian at U, computed when a step from U is first needed
         radius = c.trust_radius
         for _ in range(c.iterations):
             if radius < 1e-4 * self.bound or not math.isfinite(cost):
                 break
-            r0 = self._residuals(state, U).detach()
-            J = self._jacobian(state, U)
-            if not (torch.isfinite(J).all() and torch.isfinite(r0).all()):
-                radius *= 0.5  # a degenerate linearisation: try a smaller step
-                continue
+            if J is None:
+                J = self._jacobian(state, U)
+                if not torch.isfinite(J).all():
+                    break  # a degenerate linearisation: no step can be computed from here
             Jd, rd = J.double().numpy(), r0.double().numpy()
             d = self._step(Jd, rd, U.double().numpy(), radius)
             predicted = -math.inf if d is None else float(rd @ rd - np.sum((rd + Jd @ d) ** 2))
@@ -139,8 +141,9 @@ class SQPPlanner(Planner):
                 continue
             trial = self.clamp(U + torch.from_numpy(d).float())
             with torch.no_grad():
-                trial_cost = float((self._residuals(state, trial) ** 2).sum())
-            if not trial_cost < cost:  # rejected (or not finite)
+                r_trial = self._residuals(state, trial)
+            trial_cost = float((r_trial**2).sum())
+            if not trial_cost < cost:  # rejected (or not finite): keep U, r0 and J
                 radius *= 0.5
                 continue
             rho = (cost - trial_cost) / predicted
@@ -148,5 +151,5 @@ class SQPPlanner(Planner):
                 radius = min(2.0 * radius, 2.0 * self.bound)
             elif rho < self.shrink_below:
                 radius *= 0.5
-            U, cost = trial, trial_cost
+            U, cost, r0, J = trial, trial_cost, r_trial, None
         return U.view(c.horizon, 2), c.iterations

@@ -117,3 +117,49 @@ def test_sqp_trust_region_grows_after_good_steps():
     best = optimum(cost, toy_state(), cfg.horizon, DT, BOUND)
     _, info = planner.plan(toy_state())
     assert info.cost <= best * (1 + MARGIN["sqp"]) + 1e-3, (info.cost, best)
+
+
+class Counting:
+    """Wraps a dynamics backend, counting its rollouts."""
+
+    def __init__(self, inner):
+        self.inner, self.calls = inner, 0
+        self.name, self.differentiable = inner.name, inner.differentiable
+
+    def rollout(self, state, actions, *, clouds=False):
+        self.calls += 1
+        return self.inner.rollout(state, actions, clouds=clouds)
+
+
+class Treacherous(CarriedDisk):
+    """The carried disk, pulled back from a goal on +x by a drift that grows with the square of
+    the actions: flat at rest, so a linearisation at rest misses it and any step from rest
+    (down to the smallest trust region of a few iterations) costs more than staying."""
+
+    def rollout(self, state, actions, *, clouds=False):
+        out = super().rollout(state, actions, clouds=clouds)
+        drift = 1e4 * (actions**2).sum((1, 2))  # (K,) m
+        back = torch.zeros_like(out.object_poses)
+        back[..., 0] = drift[:, None]
+        return dataclasses.replace(out, object_poses=out.object_poses - back)
+
+
+def test_sqp_rejected_steps_reuse_the_linearisation():
+    cost = PushCost(SCENARIO, torch.tensor((0.1, 0.0, 0.0)), TOY_COST)
+    dynamics = Counting(Treacherous(DT))
+    cfg = PlannerConfig(iterations=6)
+    planner = make_planner("sqp", dynamics, cost, SCENARIO, cfg)
+    _, info = planner.plan(toy_state())
+    assert not info.actions.any()  # every step was rejected
+    # residuals and Jacobian at the warm start, one trial per iteration, plan()'s report
+    assert dynamics.calls == 2 + cfg.iterations + 1
+
+
+def test_sqp_accepted_steps_cost_two_rollouts():
+    cost = PushCost(SCENARIO, torch.tensor((0.1, 0.05, 0.0)), TOY_COST)
+    dynamics = Counting(CarriedDisk(DT))
+    cfg = PlannerConfig(iterations=6)
+    planner = make_planner("sqp", dynamics, cost, SCENARIO, cfg)
+    planner.plan(toy_state())
+    # the warm start's residuals, then per step a trial and (once accepted) its Jacobian
+    assert dynamics.calls <= 1 + 2 * cfg.iterations + 1
