@@ -39,10 +39,19 @@ class CEMPlanner(Planner):
 
 class MPPIPlanner(Planner):
     """Model-predictive path integral control: the nominal sequence moves to the
-    softmin-weighted mean of noisy samples, with costs min-max normalised so that the
-    temperature does not depend on the cost's scale."""
+    softmin-weighted mean of noisy samples, weights exp(-(c - c_min) / (s * temperature)).
+
+    The scale s is robust, the median cost less the minimum (the lower middle value for an
+    even count): the temperature does not depend on the cost's scale, and a tail of outliers
+    (a sample that leaves the workspace and pays its penalty) changes neither s nor the other
+    samples' weights, as dividing by the range (max - min) would, flattening them all."""
 
     name = "mppi"
+
+    def _weights(self, cost: torch.Tensor) -> torch.Tensor:
+        """Softmin weights (K,) of the costs (K,), normalised by a robust scale."""
+        scale = (cost.median() - cost.min()).clamp_min(1e-9)
+        return torch.softmax(-(cost - cost.min()) / (scale * self.cfg.temperature), 0)
 
     def _optimise(self, state: PlanState, U0: torch.Tensor) -> tuple[torch.Tensor, int]:
         c = self.cfg
@@ -52,7 +61,6 @@ class MPPIPlanner(Planner):
             samples[0] = U
             with torch.inference_mode():
                 cost, _ = self.evaluate(state, samples)
-            norm = (cost - cost.min()) / (cost.max() - cost.min()).clamp_min(1e-9)
-            w = torch.softmax(-norm / c.temperature, 0)
+            w = self._weights(cost)
             U = self.clamp((w[:, None, None] * samples).sum(0))
         return U, c.iterations

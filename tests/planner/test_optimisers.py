@@ -163,3 +163,25 @@ def test_sqp_accepted_steps_cost_two_rollouts():
     planner.plan(toy_state())
     # the warm start's residuals, then per step a trial and (once accepted) its Jacobian
     assert dynamics.calls <= 1 + 2 * cfg.iterations + 1
+
+
+class WithOutlier(PushCost):
+    """The push cost, plus an enormous penalty on the worst sample of each batch (as if it had
+    left the table)."""
+
+    def cost(self, *args, **kwargs):
+        cost = super().cost(*args, **kwargs)
+        if len(cost) > 1:
+            cost = cost.clone()
+            cost[cost.argmax()] += 1e6
+        return cost
+
+
+def test_mppi_weights_ignore_an_outlier():
+    plans = []
+    for kind in (PushCost, WithOutlier):
+        cost = kind(SCENARIO, torch.tensor((0.1, -0.05, 0.0)), TOY_COST)
+        planner = make_planner("mppi", CarriedDisk(DT), cost, SCENARIO)
+        _, info = planner.plan(toy_state())
+        plans.append(info.actions)
+    np.testing.assert_allclose(plans[1], plans[0], atol=1e-6)
