@@ -44,7 +44,11 @@ class MPPIPlanner(Planner):
     The scale s is robust, the median cost less the minimum (the lower middle value for an
     even count): the temperature does not depend on the cost's scale, and a tail of outliers
     (a sample that leaves the workspace and pays its penalty) changes neither s nor the other
-    samples' weights, as dividing by the range (max - min) would, flattening them all."""
+    samples' weights, as dividing by the range (max - min) would, flattening them all.
+
+    As CEM does, it keeps the best sequence it evaluated (the nominal is always sample 0) and
+    returns it unless the final weighted mean, evaluated once more, costs less: the plan never
+    costs more than the warm start."""
 
     name = "mppi"
 
@@ -56,11 +60,19 @@ class MPPIPlanner(Planner):
     def _optimise(self, state: PlanState, U0: torch.Tensor) -> tuple[torch.Tensor, int]:
         c = self.cfg
         U = U0.clone()
+        best, best_cost = U0, math.inf
         for _ in range(c.iterations):
             samples = self.clamp(U + c.init_std * self.bound * self.noise(c.samples))
             samples[0] = U
             with torch.inference_mode():
                 cost, _ = self.evaluate(state, samples)
+            i = int(cost.argmin())
+            if cost[i] < best_cost:
+                best, best_cost = samples[i].clone(), float(cost[i])
             w = self._weights(cost)
             U = self.clamp((w[:, None, None] * samples).sum(0))
-        return U, c.iterations
+        with torch.inference_mode():
+            cost, _ = self.evaluate(state, U[None])
+        if float(cost[0]) < best_cost:
+            best = U
+        return best, c.iterations

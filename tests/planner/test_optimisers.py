@@ -185,3 +185,20 @@ def test_mppi_weights_ignore_an_outlier():
         _, info = planner.plan(toy_state())
         plans.append(info.actions)
     np.testing.assert_allclose(plans[1], plans[0], atol=1e-6)
+
+
+@pytest.mark.parametrize("temperature", [0.05, 1.0])
+def test_mppi_plan_never_costs_more_than_its_warm_start(temperature):
+    goal, state = torch.tensor((0.03, 0.01, 0.0)), toy_state()
+    cost = PushCost(SCENARIO, goal, TOY_COST)
+    _, exact = make_planner("sqp", CarriedDisk(DT), cost, SCENARIO, STRONG["sqp"]).plan(state)
+    for seed in range(3):
+        cost = PushCost(SCENARIO, goal, TOY_COST)
+        cfg = PlannerConfig(temperature=temperature, seed=seed)
+        planner = make_planner("mppi", CarriedDisk(DT), cost, SCENARIO, cfg)
+        # warm start at the optimum: any weighted mean of noisy samples around it overshoots
+        planner.nominal = torch.from_numpy(exact.actions).float()
+        with torch.no_grad():
+            warm, _ = planner.evaluate(state, planner.nominal[None])
+        _, info = planner.plan(state)
+        assert info.cost <= float(warm[0]) * (1 + 1e-6), (info.cost, float(warm[0]))
