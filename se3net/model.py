@@ -94,6 +94,15 @@ class Prediction(NamedTuple):
     """(B,k,3) rotation centres (None for flow nets)"""
 
 
+class Encoding(NamedTuple):
+    """What the network computes from a cloud alone (before the controls enter)."""
+
+    feats: tuple[torch.Tensor, ...]
+    """encoder features, finest first, each (B,C,h,w)"""
+    z: torch.Tensor
+    """(B,256) the cloud's code"""
+
+
 def _block(conv: nn.Module, channels: int, *, pool: bool = False) -> nn.Sequential:
     layers = (
         [conv]
@@ -140,19 +149,28 @@ class _Backbone(nn.Module):
         self.ups, self.post = nn.ModuleList(ups), nn.ModuleList(post)
         self.head = nn.ConvTranspose2d(chans[0], out_channels, 4, stride=2, padding=1)
 
-    def forward(self, x: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Returns (fused code (B,256), decoder output (B,out,H,W))."""
+    def encode(self, x: torch.Tensor) -> Encoding:
+        """The cloud's half of the network: encoder features and the cloud code."""
         feats = []
         for block in self.encoder:
             x = block(x)
             feats.append(x)
-        z = self.cloud_fc(self.reduce(x).flatten(1))
-        code = self.fuse(torch.cat([z, self.control(u)], 1))
+        return Encoding(tuple(feats), self.cloud_fc(self.reduce(x).flatten(1)))
+
+    def code(self, enc: Encoding, u: torch.Tensor) -> torch.Tensor:
+        """(B,256) the fused code of an encoding (batch 1 or B) and normalised controls (B,n)."""
+        z = enc.z.expand(len(u), -1)
+        return self.fuse(torch.cat([z, self.control(u)], 1))
+
+    def decode(self, code: torch.Tensor, enc: Encoding) -> torch.Tensor:
+        """(B,out,H,W) the decoder's output: deconvolutions from the code, skip-adding the
+        encoder's features (batch 1 or B)."""
+        feats = enc.feats
         y = self.expand_fc(code).view(-1, self.REDUCED, self.s_h, self.s_w)
         y = self.expand_act(self.expand(y) + feats[-1])
         for up, post, skip in zip(self.ups, self.post, feats[-2::-1], strict=True):
             y = post(up(y) + skip)
-        return code, self.head(y)
+        return self.head(y)
 
 
 class _Normaliser(nn.Module):
@@ -165,9 +183,12 @@ class _Normaliser(nn.Module):
         self.register_buffer("u_mean", torch.zeros(control_dim))
         self.register_buffer("u_std", torch.ones(control_dim))
 
-    def forward(self, points: torch.Tensor, valid: torch.Tensor, u: torch.Tensor):
+    def points(self, points: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
         x = (points - self.points_mean[:, None, None]) / self.points_std[:, None, None]
-        return x * valid[:, None], (u - self.u_mean) / self.u_std
+        return x * valid[:, None]
+
+    def controls(self, u: torch.Tensor) -> torch.Tensor:
+        return (u - self.u_mean) / self.u_std
 
 
 def sharpen(
@@ -233,6 +254,44 @@ class SE3Net(nn.Module):
         nn.init.zeros_(self.se3_head[-1].bias)
         self.register_buffer("gamma", torch.tensor(1.0))  # sharpening exponent used in eval
 
+    def encode(self, points: torch.Tensor, valid: torch.Tensor) -> Encoding:
+        """The cloud's part of a prediction, for :meth:`predict` (once for many controls)."""
+        return self.backbone.encode(self.norm.points(points, valid))
+
+    def predict(
+        self,
+        points: torch.Tensor,
+        u: torch.Tensor,
+        valid: torch.Tensor,
+        enc: Encoding,
+        *,
+        masks: torch.Tensor | None = None,
+        sigma: float = 0.0,
+        gamma: float | None = None,
+        generator: torch.Generator | None = None,
+    ) -> Prediction:
+        """Predict the cloud after one step from an encoding of ``points``.
+
+        Args:
+            points: (B0,3,H,W) input cloud, camera frame (m), B0 = 1 or B. u: (B,n) controls.
+            valid: (B0,H,W) bool. enc: ``encode(points, valid)``.
+            masks: (B,k,H,W) masks to use instead of decoding them (a rollout that carries
+                the first step's masks with the points); None: decode them.
+            sigma, gamma: sharpening noise SD and exponent (training); by default no noise
+                and the exponent training ended with.
+        """
+        code = self.backbone.code(enc, self.norm.controls(u))
+        if masks is None:
+            masks = torch.softmax(self.backbone.decode(code, enc), dim=1)
+            if self.cfg.sharpens:
+                g = float(self.gamma) if gamma is None else gamma
+                masks = sharpen(masks, sigma, g, generator)
+        B, k = masks.shape[:2]
+        T = params_to_transform(self.se3_head(code).view(B, k, 6))  # (B,k,3,4)
+        points, valid = points.expand(B, -1, -1, -1), valid.expand(B, -1, -1)
+        y, pivots = transform_layer(points, valid, masks, T, centroid=self.cfg.pivot == "centroid")
+        return Prediction(y, masks, T, pivots)
+
     def forward(
         self,
         points: torch.Tensor,
@@ -251,15 +310,8 @@ class SE3Net(nn.Module):
             sigma, gamma: sharpening noise SD and exponent (training); by default no noise
                 and the exponent training ended with.
         """
-        x, un = self.norm(points, valid, u)
-        code, logits = self.backbone(x, un)
-        masks = torch.softmax(logits, dim=1)
-        if self.cfg.sharpens:
-            masks = sharpen(masks, sigma, float(self.gamma) if gamma is None else gamma, generator)
-        B, k = masks.shape[:2]
-        T = params_to_transform(self.se3_head(code).view(B, k, 6))  # (B,k,3,4)
-        y, pivots = transform_layer(points, valid, masks, T, centroid=self.cfg.pivot == "centroid")
-        return Prediction(y, masks, T, pivots)
+        enc = self.encode(points, valid)
+        return self.predict(points, u, valid, enc, sigma=sigma, gamma=gamma, generator=generator)
 
 
 class FlowNet(nn.Module):
@@ -273,13 +325,29 @@ class FlowNet(nn.Module):
         nn.init.zeros_(self.backbone.head.weight)  # starts predicting no motion
         nn.init.zeros_(self.backbone.head.bias)
 
+    def encode(self, points: torch.Tensor, valid: torch.Tensor) -> Encoding:
+        """The cloud's part of a prediction, for :meth:`predict` (once for many controls)."""
+        return self.backbone.encode(self.norm.points(points, valid))
+
+    def predict(
+        self,
+        points: torch.Tensor,
+        u: torch.Tensor,
+        valid: torch.Tensor,
+        enc: Encoding,
+        **_: object,
+    ) -> Prediction:
+        """Predict the cloud after one step from an encoding of ``points`` (batch 1 or B)."""
+        flow = self.backbone.decode(self.backbone.code(enc, self.norm.controls(u)), enc)
+        B = len(flow)
+        points, valid = points.expand(B, -1, -1, -1), valid.expand(B, -1, -1)
+        y = torch.where(valid[:, None], points + FLOW_SCALE_M * flow, points)
+        return Prediction(y, None, None, None)
+
     def forward(
         self, points: torch.Tensor, u: torch.Tensor, valid: torch.Tensor, **_: object
     ) -> Prediction:
-        x, un = self.norm(points, valid, u)
-        _, flow = self.backbone(x, un)
-        y = torch.where(valid[:, None], points + FLOW_SCALE_M * flow, points)
-        return Prediction(y, None, None, None)
+        return self.predict(points, u, valid, self.encode(points, valid))
 
 
 def build_model(cfg: ModelConfig) -> nn.Module:
