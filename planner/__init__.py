@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from planner.base import PlanInfo, Planner, PlannerConfig
 from planner.cost import CostConfig, PushCost
-from planner.dynamics import BACKENDS, Dynamics, PlanState, Rollout, make_dynamics, plan_state
+from planner.dynamics import BACKENDS, Dynamics, PlanState, Rollout, make_dynamics
 from planner.gradient import GradPlanner, SQPPlanner
+from planner.observe import plan_state
 from planner.sampling import CEMPlanner, MPPIPlanner
-from scenarios import Scenario
+from scenarios import InputError, Scenario
 
 PLANNERS: dict[str, type[Planner]] = {
     "cem": CEMPlanner,
@@ -26,7 +27,7 @@ def make_planner(
 ) -> Planner:
     """A planner by name (``cem``, ``mppi``, ``grad``, ``sqp``)."""
     if name not in PLANNERS:
-        raise ValueError(f"unknown planner {name!r}; known: {', '.join(PLANNERS)}")
+        raise InputError(f"unknown planner {name!r}; known: {', '.join(PLANNERS)}")
     return PLANNERS[name](dynamics, cost, scenario, cfg or PlannerConfig())
 
 

@@ -14,7 +14,7 @@ import torch
 
 from planner.cost import PushCost
 from planner.dynamics import Dynamics, PlanState, Rollout
-from scenarios import Scenario
+from scenarios import InputError, Scenario
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,7 @@ class PlannerConfig:
     colour: float = 0.0
     """CEM: temporal correlation of the noise (AR(1) coefficient; 0 = white)"""
     temperature: float = 0.05
-    """MPPI: temperature on min-max normalised costs"""
+    """MPPI: temperature on costs less their minimum, divided by (median - minimum)"""
     grad_steps: int = 10
     """grad: Adam steps"""
     grad_lr: float = 0.02
@@ -51,9 +51,9 @@ class PlannerConfig:
     def __post_init__(self) -> None:
         for name in ("horizon", "samples", "iterations", "elites", "grad_steps"):
             if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)}")
+                raise InputError(f"{name} must be a positive integer, got {getattr(self, name)}")
         if self.elites > self.samples:
-            raise ValueError(f"elites ({self.elites}) cannot exceed samples ({self.samples})")
+            raise InputError(f"elites ({self.elites}) cannot exceed samples ({self.samples})")
 
 
 @dataclass
@@ -91,7 +91,7 @@ class Planner:
     def reset(self) -> None:
         """Forget the warm start (a new episode)."""
         self.nominal = torch.zeros(self.cfg.horizon, 2)
-        self.cost.last_action = torch.zeros(2)
+        self.last_action = torch.zeros(2)  # the action executed before this plan
         self.gen.manual_seed(self.cfg.seed)
 
     def clamp(self, U: torch.Tensor) -> torch.Tensor:
@@ -100,7 +100,7 @@ class Planner:
     def evaluate(self, state: PlanState, U: torch.Tensor) -> tuple[torch.Tensor, Rollout]:
         """Costs (K,) and rollouts of sequences U (K,H,2)."""
         rollout = self.dynamics.rollout(state, U)
-        return self.cost.cost(state, rollout, U), rollout
+        return self.cost.cost(state, rollout, U, last_action=self.last_action), rollout
 
     def noise(self, K: int) -> torch.Tensor:
         """Standard normal noise (K,H,2) from the planner's generator."""
@@ -117,7 +117,7 @@ class Planner:
         with torch.no_grad():
             cost, rollout = self.evaluate(state, U[None])
         self.nominal = torch.cat([U[1:], U[-1:]])  # warm start for the next replan
-        self.cost.last_action = U[0].clone()
+        self.last_action = U[0].clone()
         # float32 0.15 is 0.15000000596: clip in float64 so that the world accepts the action
         actions = np.clip(U.double().numpy(), -self.bound, self.bound)
         info = PlanInfo(

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import torch
 
 from planner.dynamics import PlanState, Rollout
-from scenarios import Scenario
+from scenarios import InputError, Scenario
 from sim.planar import wrap_angle
 
 
@@ -63,17 +63,23 @@ class CostConfig:
     """weight of an ensemble's disagreement per step (scaled like the position error); only
     ensembles report one"""
 
+    def __post_init__(self) -> None:
+        for name, value in vars(self).items():
+            if not (math.isfinite(value) and value >= 0):
+                what = "--spread-weight" if name == "w_spread" else f"cost setting {name}"
+                raise InputError(f"{what} must be a finite number >= 0, got {value}")
+
 
 def check_goal(scenario: Scenario, goal: torch.Tensor | tuple[float, float, float]) -> torch.Tensor:
-    """The goal (x_m, y_m, yaw_rad) as a tensor, or a ValueError saying what is wrong."""
+    """The goal (x_m, y_m, yaw_rad) as a tensor, or an InputError saying what is wrong."""
     g = torch.as_tensor(goal, dtype=torch.float32).flatten()
     if g.numel() != 3:
-        raise ValueError(f"a goal is x, y, yaw (3 numbers); got {g.numel()}")
+        raise InputError(f"a goal is x, y, yaw (3 numbers); got {g.numel()}")
     if not torch.isfinite(g).all():
-        raise ValueError(f"goal {g.tolist()} is not finite")
+        raise InputError(f"goal {g.tolist()} is not finite")
     hx, hy = (s / 2 for s in scenario.table.size_m)
     if abs(float(g[0])) > hx or abs(float(g[1])) > hy:
-        raise ValueError(
+        raise InputError(
             f"goal position ({float(g[0]):.3f}, {float(g[1]):.3f}) m is off the table "
             f"(x in [{-hx}, {hx}], y in [{-hy}, {hy}] for scenario {scenario.name})"
         )
@@ -94,14 +100,13 @@ class PushCost:
         self.bound = scenario.action.max_speed_m_s
         self.pusher_radius = scenario.arm.pusher_radius_m
         self.half = torch.tensor(scenario.table.size_m) / 2 - cfg.workspace_margin_m
-        self.last_action = torch.zeros(2)
 
     def pre_push_point(self, state: PlanState) -> torch.Tensor:
         """Where the pusher should be to push the object toward the goal: behind it."""
         obj = state.object_pose[:2]
         d = self.goal[:2] - obj
         d = d / d.norm().clamp_min(1e-6)
-        back = state.object_spec.footprint_radius_m + 0.02
+        back = state.footprint_radius_m + 0.02
         return obj - back * d
 
     def shaping_target(self, state: PlanState) -> torch.Tensor:
@@ -116,12 +121,21 @@ class PushCost:
         if abs(phi) <= math.radians(c.behind_deg):
             return self.pre_push_point(state)
         step = phi - math.copysign(math.radians(c.round_step_deg), phi)
-        radius = state.object_spec.footprint_radius_m + self.pusher_radius + c.round_clearance_m
+        radius = state.footprint_radius_m + self.pusher_radius + c.round_clearance_m
         cs, sn = math.cos(step), math.sin(step)
         way = torch.stack([cs * behind[0] - sn * behind[1], sn * behind[0] + cs * behind[1]])
         return obj + radius * way
 
-    def residuals(self, state: PlanState, rollout: Rollout, actions: torch.Tensor) -> torch.Tensor:
+    def residuals(
+        self,
+        state: PlanState,
+        rollout: Rollout,
+        actions: torch.Tensor,
+        *,
+        last_action: torch.Tensor,
+    ) -> torch.Tensor:
+        """(K, m) residuals of K rollouts of ``actions`` (K,H,2); ``last_action`` (2,) is the
+        action executed before this plan (the smoothness term's a_{-1})."""
         c = self.cfg
         K, H, _ = actions.shape
         goal = self.goal.to(actions)
@@ -129,7 +143,7 @@ class PushCost:
         w[-1] = math.sqrt(c.w_terminal)
         pos = (rollout.object_poses[..., :2] - goal[:2]) / c.pos_scale_m * w[None, :, None]
         res = [pos.flatten(1)]
-        period = state.object_spec.yaw_period_rad
+        period = state.yaw_period_rad
         if period is not None:
             yaw = wrap_angle(rollout.object_poses[..., 2] - goal[2], period) / c.yaw_scale_rad
             res.append(math.sqrt(c.w_yaw) * yaw * w)
@@ -143,7 +157,7 @@ class PushCost:
         ) / c.shaping_scale_m
         res.append(math.sqrt(c.w_shaping) * sqrt_gate[:, None] * dist)
         res.append(math.sqrt(c.w_action) * actions.flatten(1) / self.bound)
-        prev = torch.cat([self.last_action.to(actions).expand(K, 1, 2), actions[:, :-1]], 1)
+        prev = torch.cat([last_action.to(actions).expand(K, 1, 2), actions[:, :-1]], 1)
         res.append(math.sqrt(c.w_smooth) * (actions - prev).flatten(1) / self.bound)
         out = torch.relu(rollout.pusher_xy.abs() - self.half.to(actions)) / 0.01
         res.append(math.sqrt(c.w_workspace) * out.flatten(1))
@@ -151,6 +165,13 @@ class PushCost:
             res.append(math.sqrt(c.w_spread) * rollout.spread / c.pos_scale_m)
         return torch.cat(res, 1)
 
-    def cost(self, state: PlanState, rollout: Rollout, actions: torch.Tensor) -> torch.Tensor:
+    def cost(
+        self,
+        state: PlanState,
+        rollout: Rollout,
+        actions: torch.Tensor,
+        *,
+        last_action: torch.Tensor,
+    ) -> torch.Tensor:
         """(K,) total cost of each candidate."""
-        return (self.residuals(state, rollout, actions) ** 2).sum(1)
+        return (self.residuals(state, rollout, actions, last_action=last_action) ** 2).sum(1)

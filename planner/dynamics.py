@@ -21,14 +21,16 @@ positions over the horizon. Backends:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import torch
 
-from scenarios import Scenario
-from sim.mjcf import ObjectSpec
-from sim.world import FIRST_OBJECT_PART, Observation, PushWorld
+from scenarios import InputError, Scenario
+from se3net.rollout import rollout
+
+if TYPE_CHECKING:
+    from sim import PushWorld
 
 BACKENDS = ("se3net", "flow", "oracle", "no-motion")
 
@@ -36,7 +38,8 @@ BACKENDS = ("se3net", "flow", "oracle", "no-motion")
 @dataclass(frozen=True)
 class PlanState:
     """What the planner knows at one control step (the object's pixels and pose stand in for
-    an object tracker, as the paper used DART; the object's motion comes from the backend)."""
+    an object tracker, as the paper used DART; the object's motion comes from the backend).
+    ``planner.observe.plan_state`` makes one from a world's observation."""
 
     points: torch.Tensor
     """(3,H,W) observed cloud, camera frame (m)"""
@@ -48,25 +51,12 @@ class PlanState:
     """(3,) x_m, y_m, yaw_rad of the pushed object, world frame"""
     pusher_xy: torch.Tensor
     """(2,) pusher tip position, world frame"""
-    object_spec: ObjectSpec
-    """shape and size of the pushed object (for yaw symmetry and the pre-push point)"""
-    world: PushWorld | None = None
-    """the simulator, for the oracle backend only"""
-    object_index: int = 0
-
-
-def plan_state(obs: Observation, world: PushWorld, object_index: int = 0) -> PlanState:
-    """The planner's view of a world observation."""
-    return PlanState(
-        points=torch.from_numpy(obs.points_cam).float(),
-        valid=torch.from_numpy(obs.valid),
-        object_mask=torch.from_numpy(obs.part == FIRST_OBJECT_PART + object_index),
-        object_pose=torch.from_numpy(obs.object_poses[object_index]).float(),
-        pusher_xy=torch.from_numpy(obs.pusher_xy_m).float(),
-        object_spec=world.objects[object_index],
-        world=world,
-        object_index=object_index,
-    )
+    T_world_cam: torch.Tensor
+    """(4,4) the camera's pose in the world frame"""
+    footprint_radius_m: float
+    """radius of the circle that holds the pushed object's footprint (the pre-push point)"""
+    yaw_period_rad: float | None
+    """the turn after which the pushed object looks the same (None: any turn, a cylinder)"""
 
 
 def planar_fit(
@@ -136,22 +126,25 @@ class NoMotionDynamics:
 
 
 class OracleDynamics:
-    """The true simulator: each candidate is simulated from a copy of the world's state."""
+    """The true simulator: each candidate is simulated from a copy of the world's state.
+
+    The oracle is the one backend that holds the world (it is given it when built); it
+    copies the world's current state at each rollout, and builds its copy again whenever the
+    world was reset (a reset builds a new model: other objects, sizes, masses and friction).
+    """
 
     name, differentiable = "oracle", False
 
-    def __init__(self, scenario: Scenario):
-        self.scenario = scenario
+    def __init__(self, world: PushWorld, object_index: int = 0):
+        self.world, self.object_index = world, object_index
         self._clone: PushWorld | None = None
-        self._source: PushWorld | None = None
+        self._clone_of = None  # the world's model the copy was built from
 
     def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
-        if state.world is None:
-            raise ValueError("the oracle backend needs the simulator in the plan state")
-        if self._source is not state.world or self._clone.model.nbody != state.world.model.nbody:
-            self._clone, self._source = state.world.clone(), state.world  # new episode
-        start = state.world.snapshot()
-        bound = self.scenario.action.max_speed_m_s  # float32 candidates may round past it
+        if self._clone_of is not self.world.model:  # a new episode: copy its objects
+            self._clone, self._clone_of = self.world.clone(), self.world.model
+        start = self.world.snapshot()
+        bound = self.world.scenario.action.max_speed_m_s  # float32 candidates may round past it
         a = np.clip(actions.detach().cpu().double().numpy(), -bound, bound)
         K, H, _ = a.shape
         poses = np.empty((K, H, 3))
@@ -162,7 +155,7 @@ class OracleDynamics:
                 if self._clone.ended:  # the object fell off: it stays where it was last seen
                     poses[k, h], pusher[k, h] = poses[k, h - 1], pusher[k, h - 1]
                     continue
-                poses[k, h] = self._clone.advance(a[k, h])[state.object_index]
+                poses[k, h] = self._clone.advance(a[k, h])[self.object_index]
                 pusher[k, h] = self._clone.pusher_xy()
         return Rollout(torch.from_numpy(poses).to(actions), torch.from_numpy(pusher).to(actions))
 
@@ -175,44 +168,50 @@ class LearnedDynamics:
             scenario).
         scenario: the scenario (camera extrinsics, control timing).
         name: ``"se3net"`` or ``"flow"``.
+        carry_masks: keep the first step's masks over the horizon (``se3net.rollout``).
     """
 
     differentiable = True
 
     def __init__(
-        self, model: torch.nn.Module, scenario: Scenario, *, name: str, device: str = "cpu"
+        self,
+        model: torch.nn.Module,
+        scenario: Scenario,
+        *,
+        name: str,
+        device: str = "cpu",
+        carry_masks: bool = False,
     ):
-        from sim.camera import DepthCamera
-
         self.model, self.name, self.device = model.eval(), name, torch.device(device)
         self.dt = scenario.action.dt_control_s
-        cam = DepthCamera(scenario.camera)
-        self.T_world_cam = torch.from_numpy(cam.T_world_cam).float().to(self.device)
-
-    def _world(self, points: torch.Tensor) -> torch.Tensor:
-        """Camera-frame points (...,N,3) in the world frame."""
-        return points @ self.T_world_cam[:3, :3].T + self.T_world_cam[:3, 3]
+        self.carry_masks = carry_masks
 
     def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
         K, H, _ = actions.shape
         caller = actions.device  # the network runs on self.device; results go back to the caller
         actions = actions.to(self.device)
         pusher = integrate_pusher(state, actions, self.dt)
-        x = state.points.to(self.device).expand(K, -1, -1, -1)
-        valid = state.valid.to(self.device).expand(K, -1, -1)
+        predicted = rollout(
+            self.model,
+            state.points.to(self.device)[None],
+            state.valid.to(self.device)[None],
+            actions,
+            state.pusher_xy.to(self.device)[None],
+            self.dt,
+            carry_masks=self.carry_masks,
+        )
         sel = (state.object_mask & state.valid).flatten().nonzero()[:, 0].to(self.device)
-        src = self._world(state.points.to(self.device).flatten(1)[:, sel].T)  # (N,3)
+        T = state.T_world_cam.to(self.device, state.points.dtype)
+
+        def world(points: torch.Tensor) -> torch.Tensor:  # camera-frame (...,N,3) to world
+            return points @ T[:3, :3].T + T[:3, 3]
+
+        src = world(state.points.to(self.device).flatten(1)[:, sel].T)  # (N,3)
         pose0 = state.object_pose.to(self.device)
-        prev_xy = state.pusher_xy.to(self.device).expand(K, 2)
-        poses, out_clouds = [], []
-        for h in range(H):
-            u = torch.cat([actions[:, h], prev_xy], 1)
-            x = self.model(x, u, valid).points
-            prev_xy = pusher[:, h]
-            if clouds:
-                out_clouds.append(x)
+        poses = []
+        for x in predicted:
             if len(sel) >= 3:
-                dst = self._world(x.flatten(2)[:, :, sel].transpose(1, 2))  # (K,N,3)
+                dst = world(x.flatten(2)[:, :, sel].transpose(1, 2))  # (K,N,3)
                 yaw, xy = planar_fit(src[:, :2], dst[..., :2], pose0[:2])
                 poses.append(torch.cat([xy, (pose0[2] + yaw)[:, None]], 1))
             else:  # the object is out of sight: nothing to predict from
@@ -220,7 +219,7 @@ class LearnedDynamics:
         return Rollout(
             torch.stack(poses, 1).to(caller),
             pusher.to(caller),
-            torch.stack(out_clouds, 1).to(caller) if clouds else None,
+            torch.stack(predicted, 1).to(caller) if clouds else None,
         )
 
 
@@ -237,7 +236,7 @@ class EnsembleDynamics:
 
     def __init__(self, members: list[LearnedDynamics]):
         if len(members) < 2:
-            raise ValueError(f"an ensemble needs at least two models, got {len(members)}")
+            raise InputError(f"an ensemble needs at least two models, got {len(members)}")
         self.members = members
         self.model = getattr(members[0], "model", None)  # what the visualiser shows
         self.name = "ensemble"
@@ -247,7 +246,7 @@ class EnsembleDynamics:
         poses = torch.stack([o.object_poses for o in outs])  # (M,K,H,3)
         mean = poses.mean(0)  # yaws are the start yaw plus small increments: a plain mean
         dev = poses - mean
-        radius = state.object_spec.footprint_radius_m
+        radius = state.footprint_radius_m
         spread_sq = (dev[..., :2] ** 2).sum(-1) + (radius * dev[..., 2]) ** 2
         return Rollout(
             mean,
@@ -262,16 +261,25 @@ ENSEMBLE_SEP = "+"
 
 
 def make_dynamics(
-    name: str, scenario: Scenario, *, model: str | None = None, device: str = "cpu"
+    name: str,
+    scenario: Scenario,
+    *,
+    model: str | None = None,
+    device: str = "cpu",
+    world: PushWorld | None = None,
+    object_index: int = 0,
 ) -> Dynamics:
     """A backend by name: ``se3net``/``flow`` (a checkpoint; the shipped model by default;
-    checkpoints joined by ``+``: an ensemble of them), ``oracle`` or ``no-motion``.
+    checkpoints joined by ``+``: an ensemble of them), ``oracle`` (needs the ``world`` and
+    the pushed object's index) or ``no-motion``.
 
     Raises:
         ValueError: an unknown name. CheckpointError: a model that does not fit the scenario.
     """
     if name == "oracle":
-        return OracleDynamics(scenario)
+        if world is None:
+            raise ValueError("the oracle backend simulates the world: pass world=")
+        return OracleDynamics(world, object_index)
     if name == "no-motion":
         return NoMotionDynamics(scenario)
     if name in ("se3net", "flow"):

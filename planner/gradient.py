@@ -10,11 +10,12 @@ import torch
 
 from planner.base import Planner
 from planner.dynamics import PlanState
+from scenarios import InputError
 
 
 def _require_gradients(planner: Planner) -> None:
     if not planner.dynamics.differentiable:
-        raise ValueError(
+        raise InputError(
             f"the {planner.name} planner needs a differentiable backend; "
             f"{planner.dynamics.name!r} is not (use cem or mppi with it)"
         )
@@ -88,7 +89,8 @@ class SQPPlanner(Planner):
 
     def _residuals(self, state: PlanState, flat: torch.Tensor) -> torch.Tensor:
         U = flat.view(1, self.cfg.horizon, 2)
-        return self.cost.residuals(state, self.dynamics.rollout(state, U), U)[0]
+        rollout = self.dynamics.rollout(state, U)
+        return self.cost.residuals(state, rollout, U, last_action=self.last_action)[0]
 
     def _jacobian(self, state: PlanState, flat: torch.Tensor) -> torch.Tensor:
         """(m, n) Jacobian of the residuals with respect to the n = H*2 actions."""

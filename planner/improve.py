@@ -22,8 +22,6 @@ lines), so an interrupted run started again continues where it stopped.
 from __future__ import annotations
 
 import json
-import multiprocessing
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -31,8 +29,16 @@ from typing import Any
 import numpy as np
 
 from planner.loop import PushConfig, run_push
-from planner.trials import TrialsConfig, draw_trial, run_trials, summary_cells
-from scenarios import load_scenario
+from planner.trials import (
+    TrialsConfig,
+    draw_trial,
+    run_trials,
+    summary_cells,
+    threads_per_worker,
+    torch_threads,
+    worker_pool,
+)
+from scenarios import InputError, load_scenario
 from sim.dataset import (
     CONTROL_LAYOUT,
     DATA_FORMAT,
@@ -43,7 +49,7 @@ from sim.dataset import (
     episode_stats,
     merge_stats,
 )
-from sim.shards import atomic_write_bytes, atomic_write_json, write_shard
+from sim.shards import atomic_write_bytes, atomic_write_json, portable_path, write_shard
 
 COLLECT_STREAM = 1_000_003
 """collection trials of round r are drawn from seed ``seed * COLLECT_STREAM + r``: a trial
@@ -85,14 +91,14 @@ class ImproveConfig:
     def __post_init__(self) -> None:
         for name in ("rounds", "trials_per_round", "heldout", "finetune_iters", "max_steps"):
             if getattr(self, name) < 1:
-                raise ValueError(
+                raise InputError(
                     f"--{name.replace('_', '-')} must be positive, got {getattr(self, name)}"
                 )
 
         if not 0.0 <= self.action_noise <= 1.0:
-            raise ValueError(f"action noise must be in [0, 1], got {self.action_noise}")
+            raise InputError(f"action noise must be in [0, 1], got {self.action_noise}")
         if not 0.0 <= self.visited_fraction < 1.0:
-            raise ValueError(f"--visited-fraction must be in [0, 1), got {self.visited_fraction}")
+            raise InputError(f"--visited-fraction must be in [0, 1), got {self.visited_fraction}")
 
     def collect_seed(self, r: int) -> int:
         return self.seed * COLLECT_STREAM + r
@@ -144,14 +150,15 @@ def collect(cfg: ImproveConfig, model: str, r: int, out: Path, *, workers: int) 
                for i in range(cfg.heldout)}  # fmt: skip
     args = [(cfg, model, r, i, T) for i in range(cfg.trials_per_round)]
     bar = tqdm(total=len(args), unit="trial", desc=f"round {r}: collect")
+    threads = threads_per_worker(workers)
     if workers == 1:
         trials = []
-        for a in args:
-            trials.append(record_trial(*a))
-            bar.update(1)
+        with torch_threads(threads):
+            for a in args:
+                trials.append(record_trial(*a))
+                bar.update(1)
     else:
-        ctx = multiprocessing.get_context("fork")
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        with worker_pool(workers, threads) as pool:
             futures = [pool.submit(record_trial, *a) for a in args]
             trials = []
             for f in futures:  # in order: the bytes do not depend on the number of workers
@@ -186,7 +193,7 @@ def collect(cfg: ImproveConfig, model: str, r: int, out: Path, *, workers: int) 
         },
     }
     if identity["control_layout"] != list(CONTROL_LAYOUT) or identity["format"] != DATA_FORMAT:
-        raise ValueError(f"{cfg.data} was written by another version of this code; regenerate it")
+        raise InputError(f"{cfg.data} was written by another version of this code; regenerate it")
     manifest = {
         "identity": identity,
         "shards": {"shard_00000.npz": {"sha256": digest, **stats}},
@@ -224,7 +231,7 @@ def run_improve(cfg: ImproveConfig, out: str | Path, *, workers: int = 1) -> dic
     scenario = load_scenario(cfg.scenario)  # refuse what cannot work before writing anything
     load_checkpoint(cfg.model, scenario=scenario)
     if read_manifest(cfg.data)["identity"]["scenario"] != json.loads(json.dumps(asdict(scenario))):
-        raise ValueError(f"{cfg.data} was not generated with scenario {cfg.scenario!r}")
+        raise InputError(f"{cfg.data} was not generated with scenario {cfg.scenario!r}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta = out / "config.json"
@@ -232,7 +239,7 @@ def run_improve(cfg: ImproveConfig, out: str | Path, *, workers: int = 1) -> dic
         old, new = json.loads(meta.read_text()), json.loads(json.dumps(asdict(cfg)))
         old.pop("rounds"), new.pop("rounds")  # more rounds continue a run
         if old != new:
-            raise ValueError(
+            raise InputError(
                 f"{out} holds another improve run ({'; '.join(differences(old, new))}); "
                 "use a new --out folder"
             )
@@ -244,7 +251,8 @@ def run_improve(cfg: ImproveConfig, out: str | Path, *, workers: int = 1) -> dic
             seed=cfg.seed, max_steps=cfg.max_steps,
         )  # fmt: skip
         summary = run_trials(tcfg, out / f"round_{r}" / "heldout", workers=workers)
-        return {"round": r, "model": model, **{k: v for k, v in summary.items() if k != "config"}}
+        figures = {k: v for k, v in summary.items() if k != "config"}
+        return {"round": r, "model": portable_path(model), **figures}
 
     rows = [heldout(cfg.model, 0)]
     model, data = cfg.model, [cfg.data]
@@ -253,7 +261,8 @@ def run_improve(cfg: ImproveConfig, out: str | Path, *, workers: int = 1) -> dic
         data.append(str(out / f"round_{r}" / "data"))
         model = finetune(cfg, model, data, out / f"round_{r}" / "model")
         rows.append({**heldout(model, r), "new_episodes": manifest["identity"]["episodes"]})
-    result = {"config": asdict(cfg), "rounds": rows}
+    paths = {"model": portable_path(cfg.model), "data": portable_path(cfg.data)}
+    result = {"config": {**asdict(cfg), **paths}, "rounds": rows}
     atomic_write_json(out / "improve.json", result)
     atomic_write_bytes(out / "improve.md", table_markdown(rows).encode())
     plot_rounds(rows, out / "improve.png")

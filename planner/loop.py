@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import torch
@@ -15,7 +15,8 @@ from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_s
 from planner.cost import CostConfig
 from planner.diagnostics import STEP_FIGURES, exploitation, step_figures
 from planner.viz import MeshcatVisualiser, NullVisualiser
-from scenarios import Scenario, load_scenario
+from scenarios import InputError, Scenario, load_scenario
+from se3net.device import check_device
 from sim import Observation, PushWorld
 from sim.planar import pose_errors
 
@@ -50,20 +51,17 @@ class PushConfig:
     action_noise: float = 0.0
     """SD of Gaussian noise added to each executed action, as a fraction of the action bound
     (exploration when collecting planner-visited data; 0 = the plan's action as it is)"""
-    spread_weight: float = CostConfig.w_spread
-    """weight of an ensemble's disagreement in the cost (0 = plan on the members' mean alone;
-    no effect on a single model)"""
+    planning: PlannerConfig = PlannerConfig()
+    """the optimiser's settings (horizon, samples, iterations…; its seed is ``seed``)"""
+    cost: CostConfig = CostConfig()
+    """the cost's weights (``w_spread``: an ensemble's disagreement)"""
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.action_noise <= 1.0:
-            raise ValueError(f"action noise must be in [0, 1], got {self.action_noise}")
-        check_spread_weight(self.spread_weight)
-
-
-def check_spread_weight(w: float) -> None:
-    """Raises ValueError unless ``w`` is a usable weight of an ensemble's disagreement."""
-    if not (math.isfinite(w) and w >= 0):
-        raise ValueError(f"--spread-weight must be a finite number >= 0, got {w}")
+            raise InputError(f"action noise must be in [0, 1], got {self.action_noise}")
+        if self.max_steps < 1:
+            raise InputError(f"--max-steps must be a positive integer, got {self.max_steps}")
+        check_device(self.device)
 
 
 @dataclass
@@ -118,10 +116,10 @@ def check_reachable(scenario: Scenario, goal: tuple[float, float, float]) -> Non
     """Refuse a goal that is not finite or outside the scenario's goal region, saying where the
     region is."""
     if len(goal) != 3 or not all(math.isfinite(g) for g in goal):
-        raise ValueError(f"a goal is three finite numbers x, y, yaw; got {list(goal)}")
+        raise InputError(f"a goal is three finite numbers x, y, yaw; got {list(goal)}")
     x0, x1, y0, y1 = scenario.goals.region_m
     if not (x0 <= goal[0] <= x1 and y0 <= goal[1] <= y1):
-        raise ValueError(
+        raise InputError(
             f"goal position ({goal[0]:.3f}, {goal[1]:.3f}) m is outside the reachable region of "
             f"scenario {scenario.name}: x in [{x0}, {x1}], y in [{y0}, {y1}] m"
         )
@@ -140,7 +138,7 @@ def run_push(
     every executed action with the observation it led to (to record planner-visited data).
 
     Raises:
-        ValueError: a bad goal, object index, planner or model name.
+        InputError: a bad goal, object index, planner or model name.
         CheckpointError: a model file that does not exist or does not fit the scenario.
     """
     scenario = load_scenario(cfg.scenario)
@@ -148,21 +146,21 @@ def run_push(
     world = PushWorld(scenario)
     obs = world.reset(cfg.seed)
     if not 0 <= cfg.object_index < len(world.objects):
-        raise ValueError(
+        raise InputError(
             f"object {cfg.object_index} does not exist: scenario {scenario.name} with seed "
             f"{cfg.seed} has {len(world.objects)} object(s) (indices 0..{len(world.objects) - 1})"
         )
     if cfg.model in ("oracle", "no-motion"):
-        dynamics = make_dynamics(cfg.model, scenario)
+        dynamics = make_dynamics(cfg.model, scenario, world=world, object_index=cfg.object_index)
     else:
         dynamics = make_dynamics("se3net", scenario, model=cfg.model, device=cfg.device)
     goal = np.array(cfg.goal, dtype=float)
     planner = make_planner(
         cfg.planner,
         dynamics,
-        PushCost(scenario, torch.tensor(goal), CostConfig(w_spread=cfg.spread_weight)),
+        PushCost(scenario, torch.tensor(goal), cfg.cost),
         scenario,
-        PlannerConfig(seed=cfg.seed),
+        replace(cfg.planning, seed=cfg.seed),
     )
     period = world.objects[cfg.object_index].yaw_period_rad
 

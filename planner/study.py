@@ -24,7 +24,6 @@ the models.
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -34,6 +33,7 @@ import torch
 
 from planner.dynamics import PlanState, make_dynamics
 from planner.trials import TrialsConfig, fmt, run_trials, summary_cells
+from scenarios import InputError
 from sim.shards import atomic_write_bytes, atomic_write_json
 
 BACKEND_MODELS = ("oracle", "no-motion")
@@ -72,12 +72,12 @@ class StudyConfig:
 
     def __post_init__(self) -> None:
         if len(self.models) < 1:
-            raise ValueError("--models needs at least one model")
+            raise InputError("--models needs at least one model")
         labels = [label for label, _ in parse_models(self.models)]
         if len(set(labels)) != len(labels):
-            raise ValueError(f"two models share a label in {labels}; name them with LABEL=PATH")
+            raise InputError(f"two models share a label in {labels}; name them with LABEL=PATH")
         if self.trials < 1 or self.max_examples < 1:
-            raise ValueError(
+            raise InputError(
                 f"--trials and --max-examples must be positive, got {self.trials}, "
                 f"{self.max_examples}"
             )
@@ -107,16 +107,17 @@ def horizon_pose_error(
     steps, over held-out windows where it moves, the model rolled as the planner rolls it."""
     from se3net.data import PushDataset
     from se3net.evaluate import _subset
-    from sim.world import FIRST_OBJECT_PART
+    from sim import object_part, pose_errors
+    from sim.dataset import episode_objects
 
     ds = PushDataset(data, split="test", horizon=horizon)
-    part_id = FIRST_OBJECT_PART + object_index
+    part_id = object_part(object_index)
     e, t = ds.items[:, 0], ds.items[:, 1]
     poses = ds.a["object_poses"][:, :, object_index]  # (episodes, frames, 3), as recorded
     start, end = poses[e, t], poses[e, t + horizon]
     moving = np.flatnonzero(np.hypot(*(end - start)[:, :2].T) > HORIZON_MOVED_M)
     if len(moving) == 0:
-        raise ValueError(f"the test split of {data} has no window where object {object_index} "
+        raise InputError(f"the test split of {data} has no window where object {object_index} "
                          f"moves over {horizon} steps; generate more data")  # fmt: skip
     pick = moving[_subset(len(moving), max_windows)]
     if model == "oracle":  # the simulator itself (tested against the world to 1e-6)
@@ -125,24 +126,27 @@ def horizon_pose_error(
         dynamics = make_dynamics("no-motion", ds.scenario)
     else:
         dynamics = make_dynamics("se3net", ds.scenario, model=model)
+    T_world_cam = torch.from_numpy(ds.camera.T_world_cam).float()
     pos_err, yaw_err = [], []
     for s in range(0, len(pick), 64):
         idx = pick[s : s + 64]
         b = ds.batch(idx)
         for j, i in enumerate(idx):
+            obj = episode_objects(ds.a, e[i])[object_index]
             state = PlanState(
                 points=b["points"][j],
                 valid=b["valid"][j],
                 object_mask=b["part"][j] == part_id,
                 object_pose=torch.from_numpy(start[i]).float(),
                 pusher_xy=b["u"][j, 0, 2:],
-                object_spec=None,  # not needed by a rollout
-                object_index=object_index,
+                T_world_cam=T_world_cam,
+                footprint_radius_m=obj.footprint_radius_m,
+                yaw_period_rad=obj.yaw_period_rad,
             )
             pred = dynamics.rollout(state, b["u"][j, None, :, :2]).object_poses[0, -1].numpy()
-            pos_err.append(math.hypot(*(pred[:2] - end[i, :2])))
-            d = pred[2] - end[i, 2]
-            yaw_err.append(abs(math.degrees((d + math.pi) % (2 * math.pi) - math.pi)))
+            pos, yaw = pose_errors(pred, end[i], obj.yaw_period_rad)
+            pos_err.append(pos)
+            yaw_err.append(yaw)
     return {
         "horizon_pos_err_cm": 100 * float(np.mean(pos_err)),
         "horizon_yaw_err_deg": float(np.mean(yaw_err)),

@@ -14,16 +14,21 @@ from __future__ import annotations
 import json
 import math
 import multiprocessing
+import os
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from planner.base import PlannerConfig
+from planner.cost import CostConfig
 from planner.diagnostics import pooled
-from planner.loop import PushConfig, check_spread_weight, run_push
-from scenarios import Scenario, load_scenario
+from planner.loop import PushConfig, run_push
+from scenarios import InputError, Scenario, load_scenario
 from sim import PushWorld
 from sim.dataset import differences
 from sim.planar import pose_errors
@@ -47,25 +52,22 @@ class TrialsConfig:
     """seed of the trial set (and of each trial's planner)"""
     max_steps: int = 60
     """control steps per trial"""
-    spread_weight: float = PushConfig.spread_weight
-    """weight of an ensemble's disagreement in the cost"""
+    planning: PlannerConfig = PlannerConfig()
+    """the optimiser's settings (each trial's planner is seeded with its world's seed)"""
+    cost: CostConfig = CostConfig()
+    """the cost's weights"""
 
     def __post_init__(self) -> None:
         if self.n < 1 or self.max_steps < 1:
-            raise ValueError(
+            raise InputError(
                 f"--n and --max-steps must be positive, got {self.n} and {self.max_steps}"
             )
-        check_spread_weight(self.spread_weight)
 
 
 TRIAL_SET = 2
 """version of the trial draw, stored in a folder's config.json: 2 measures a goal's turn with
 the object's symmetry, as success does (1 took it over 360°, so some goals were closer than
 ``goals.min_*`` allow); a folder of another version holds other trials and is refused"""
-
-SETTINGS_ADDED_LATER = {"spread_weight": 1.0}
-"""settings a trial folder's config.json may lack, with the value its trials ran with (the
-folder was written before the setting existed): such folders resume, other gaps are refused"""
 
 
 def draw_trial(scenario: Scenario, seed: int, i: int) -> dict[str, Any]:
@@ -87,7 +89,7 @@ def draw_trial(scenario: Scenario, seed: int, i: int) -> dict[str, Any]:
                 "start": start.tolist(),
                 "goal": goal.tolist(),
             }
-    raise ValueError(
+    raise InputError(
         f"scenario {scenario.name}: no goal satisfies goals.* from start {start.tolist()}"
     )
 
@@ -102,7 +104,8 @@ def run_trial(cfg: TrialsConfig, i: int) -> dict[str, Any]:
         planner=cfg.planner,
         seed=trial["reset_seed"],
         max_steps=cfg.max_steps,
-        spread_weight=cfg.spread_weight,
+        planning=cfg.planning,
+        cost=cfg.cost,
     )
     result = run_push(push)
     path = [trial["start"][:2]] + [r.object_pose[:2] for r in result.records]
@@ -152,36 +155,80 @@ def summary_cells(s: dict[str, Any]) -> dict[str, str]:
     }
 
 
+def threads_per_worker(workers: int, threads: int | None = None) -> int:
+    """torch threads for each of ``workers`` processes: ``threads`` if given, else the
+    machine's cores shared out among them (at least one), so that workers do not fight."""
+    if threads is not None:
+        if threads < 1:
+            raise InputError(f"--threads must be at least 1, got {threads}")
+        return threads
+    return max(1, (os.cpu_count() or 1) // workers)
+
+
+@contextmanager
+def torch_threads(n: int) -> Iterator[None]:
+    """Run the body with ``n`` torch threads in this process, then restore the setting."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def _init_worker(threads: int) -> None:
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+def worker_pool(workers: int, threads: int) -> ProcessPoolExecutor:
+    """Forked processes for closed-loop work, each with ``threads`` torch threads."""
+    ctx = multiprocessing.get_context("fork")
+    return ProcessPoolExecutor(
+        max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(threads,)
+    )
+
+
 def run_trials(
-    cfg: TrialsConfig, out: str | Path, *, workers: int = 1, progress: bool = True
+    cfg: TrialsConfig,
+    out: str | Path,
+    *,
+    workers: int = 1,
+    threads: int | None = None,
+    progress: bool = True,
 ) -> dict[str, Any]:
-    """Run (or finish) a trial set into ``out``; returns the summary.
+    """Run (or finish) a trial set into ``out`` with ``workers`` processes of ``threads``
+    torch threads each (by default the cores shared out); returns the summary.
 
     Asked for fewer trials than the folder holds, it summarises the first ``n`` and leaves the
     folder's ``summary.json`` and ``paths.png`` (which describe the whole set) as they are.
 
     Raises:
-        ValueError: ``out`` holds trials of another configuration, or bad settings.
+        InputError: ``out`` holds trials of another configuration, or bad settings.
     """
     from tqdm import tqdm
 
     if workers < 1:
-        raise ValueError(f"--workers must be at least 1, got {workers}")
+        raise InputError(f"--workers must be at least 1, got {workers}")
+    threads = threads_per_worker(workers, threads)
     load_scenario(cfg.scenario)  # fail early on an unknown scenario
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta_path, log = out / "config.json", out / "trials.jsonl"
     meta = {**asdict(cfg), "trial_set": TRIAL_SET}
-    if meta_path.exists():
-        old, new = json.loads(meta_path.read_text()), dict(meta)
-        old = {**SETTINGS_ADDED_LATER, **old}
+    old_meta = json.loads(meta_path.read_text()) if meta_path.exists() else None
+    if old_meta is not None:
+        old, new = dict(old_meta), dict(meta)
         old.pop("n", None), new.pop("n")  # the set is a prefix: any n extends or summarises it
         if old != new:
-            raise ValueError(
+            raise InputError(
                 f"{out} holds other trials ({'; '.join(differences(old, new))}); "
                 "use a new --out folder"
             )
-    prefix = meta_path.exists() and cfg.n < json.loads(meta_path.read_text())["n"]
+    prefix = old_meta is not None and cfg.n < old_meta["n"]
     if not prefix:
         atomic_write_json(meta_path, meta)
     records = {}
@@ -209,11 +256,11 @@ def run_trials(
         )
 
     if workers == 1:
-        for i in todo:
-            record(run_trial(cfg, i))
+        with torch_threads(threads):
+            for i in todo:
+                record(run_trial(cfg, i))
     else:
-        ctx = multiprocessing.get_context("fork")
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        with worker_pool(workers, threads) as pool:
             for fut in as_completed([pool.submit(run_trial, cfg, i) for i in todo]):
                 record(fut.result())
     bar.close()

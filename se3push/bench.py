@@ -142,7 +142,7 @@ def bench_planner(*, repeats: int, flow_model: str | None = None, device: str = 
     times: dict[str, float | None] = {}
     for backend, model in backends.items():
         kind = "flow" if backend == "flow" else backend
-        dyn = make_dynamics(kind, scenario, model=model, device=device)
+        dyn = make_dynamics(kind, scenario, model=model, device=device, world=world)
         for name in PLANNERS:
             key = f"{name}/{backend}"
             if name in ("grad", "sqp") and not dyn.differentiable:

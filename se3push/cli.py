@@ -107,8 +107,8 @@ def _cmd_trials(args: argparse.Namespace) -> int:
 
     cfg = TrialsConfig(scenario=args.scenario, n=args.n, model=args.model, planner=args.planner,
                        seed=args.seed, max_steps=args.max_steps,
-                       spread_weight=args.spread_weight)  # fmt: skip
-    s = run_trials(cfg, args.out, workers=args.workers)
+                       **_planning_configs(args))  # fmt: skip
+    s = run_trials(cfg, args.out, workers=args.workers, threads=args.threads)
     lo, hi = s["success_tight_ci95"]
     lo2, hi2 = s["success_loose_ci95"]
     print(
@@ -146,14 +146,35 @@ def _closed_loop_options(s: argparse.ArgumentParser, *, seed_help: str) -> None:
     s.add_argument("--workers", type=int, default=1, help="processes for the trials")
 
 
-def _spread_weight_option(s: argparse.ArgumentParser) -> None:
+def _planning_options(s: argparse.ArgumentParser) -> None:
+    """The common optimiser and cost settings of a closed-loop push."""
+    from planner.base import PlannerConfig
     from planner.cost import CostConfig
 
+    d = PlannerConfig()
+    s.add_argument("--horizon", type=int, default=d.horizon,
+                   help=f"actions per plan, 0.15 s each (default {d.horizon})")  # fmt: skip
+    s.add_argument("--samples", type=int, default=d.samples,
+                   help=f"candidate sequences per iteration (default {d.samples})")  # fmt: skip
+    s.add_argument("--iterations", type=int, default=d.iterations,
+                   help=f"optimiser iterations per replan (default {d.iterations})")  # fmt: skip
+    s.add_argument("--elites", type=int, default=d.elites,
+                   help=f"cem: elite sequences refitted (default {d.elites})")  # fmt: skip
     s.add_argument(
         "--spread-weight", type=float, default=CostConfig.w_spread, metavar="W",
         help="weight of an ensemble's disagreement in the cost (0: plan on the members' mean "
         f"alone; default {CostConfig.w_spread})",
     )  # fmt: skip
+
+
+def _planning_configs(args: argparse.Namespace) -> dict:
+    """``planning`` and ``cost`` configs from :func:`_planning_options`' flags."""
+    from planner.base import PlannerConfig
+    from planner.cost import CostConfig
+
+    planning = PlannerConfig(horizon=args.horizon, samples=args.samples,
+                             iterations=args.iterations, elites=args.elites)  # fmt: skip
+    return {"planning": planning, "cost": CostConfig(w_spread=args.spread_weight)}
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
@@ -283,7 +304,9 @@ def _parser() -> argparse.ArgumentParser:
         default="default",
         help="default, a checkpoint path, checkpoints joined by + (ensemble), oracle or no-motion",
     )
-    _spread_weight_option(s)
+    _planning_options(s)
+    s.add_argument("--threads", type=int, default=None,
+                   help="torch threads per worker (default: the cores shared out)")  # fmt: skip
     s.add_argument("--out", required=True, help="folder for trials.jsonl, summary.json, paths.png")
     s.set_defaults(run=_cmd_trials)
 
@@ -373,11 +396,13 @@ def _plan_push_parser() -> argparse.ArgumentParser:
         help="default (shipped), a checkpoint path, checkpoints joined by + (an ensemble whose "
         "disagreement the cost penalises), oracle or no-motion",
     )
-    _spread_weight_option(p)
+    _planning_options(p)
     p.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
     p.add_argument("--seed", type=int, default=0, help="seed of the world and the planner")
     p.add_argument("--max-steps", type=int, default=60, help="control steps before giving up")
     p.add_argument("--device", default="cpu", help="device of a learned model")
+    p.add_argument("--threads", type=int, default=None,
+                   help="torch threads (default: torch's own, one per core)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the result line as JSON")
     p.add_argument(
         "--viz", action="store_true", help="show the push live in meshcat (prints the URL)"
@@ -398,7 +423,7 @@ def _cmd_plan_push(args: argparse.Namespace) -> int:
     cfg = PushConfig(
         goal=(x, y, math.radians(yaw_deg)), scenario=args.scenario, object_index=args.object,
         model=args.model, planner=args.planner, seed=args.seed, max_steps=args.max_steps,
-        device=args.device, spread_weight=args.spread_weight,
+        device=args.device, **_planning_configs(args),
     )  # fmt: skip
 
     def show(rec) -> None:
@@ -414,7 +439,13 @@ def _cmd_plan_push(args: argparse.Namespace) -> int:
         from planner.viz import MeshcatVisualiser
 
         viz = MeshcatVisualiser(live=args.viz, record=args.record)
-    result = run_push(cfg, on_step=show, viz=viz)
+    if args.threads is None:
+        result = run_push(cfg, on_step=show, viz=viz)
+    else:
+        from planner.trials import threads_per_worker, torch_threads
+
+        with torch_threads(threads_per_worker(1, args.threads)):
+            result = run_push(cfg, on_step=show, viz=viz)
     if args.record:
         print(f"wrote {args.record} ({viz.frames} frames)")
     if args.json:

@@ -2,7 +2,8 @@
 
 from sim.camera import DepthCamera, associated_targets, look_at
 from sim.mjcf import ObjectSpec, build_mjcf
-from sim.world import ActionError, EpisodeEnded, Observation, PushWorld
+from sim.planar import pose_errors, wrap_angle
+from sim.world import ActionError, EpisodeEnded, Observation, PushWorld, object_part
 
 __all__ = [
     "ActionError",
@@ -14,4 +15,7 @@ __all__ = [
     "associated_targets",
     "build_mjcf",
     "look_at",
+    "object_part",
+    "pose_errors",
+    "wrap_angle",
 ]

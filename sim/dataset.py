@@ -28,6 +28,7 @@ import numpy as np
 from scenarios import InputError, Scenario, load_scenario
 from sim.camera import associated_targets
 from sim.explore import MODES, ExplorationConfig, ExplorationPolicy, describe_exploration
+from sim.mjcf import ObjectSpec
 from sim.shards import DataError, atomic_write_json, sha256, write_shard
 from sim.world import MAX_PARTS, PushWorld
 
@@ -97,6 +98,20 @@ PLANNER_MODE = "planner"
 """the mode of steps recorded from closed-loop planning (``se3push improve``)"""
 STEP_MODES = (*MODES, PLANNER_MODE)
 """every mode a recorded step can have (``modes`` holds indices into this)"""
+
+
+def episode_objects(arrays: dict[str, np.ndarray], e: int) -> list[ObjectSpec]:
+    """The objects of episode ``e`` of loaded dataset arrays, as :class:`EpisodeRecorder`
+    stored them."""
+    return [
+        ObjectSpec(
+            shape=SHAPES[int(arrays["object_shape"][e, i])],
+            size_m=tuple(float(x) for x in arrays["object_size"][e, i]),
+            mass_kg=float(arrays["object_mass"][e, i]),
+            friction=float(arrays["object_friction"][e, i]),
+        )
+        for i in range(int(arrays["n_objects"][e]))
+    ]
 
 
 class EpisodeRecorder:

@@ -29,6 +29,11 @@ SETTLE_S = 0.1
 MAX_SPEED_STABLE_M_S = 5.0
 
 
+def object_part(i: int) -> int:
+    """The part label (``Observation.part``, the dataset's ``part``) of object i's pixels."""
+    return FIRST_OBJECT_PART + i
+
+
 class ActionError(InputError):
     """An action was malformed, not finite, or outside the scenario's bounds."""
 
@@ -64,6 +69,10 @@ class Observation:
     """The episode has ended; ``reason`` says why."""
     reason: str
     """``""``, ``"object_off_table"`` or ``"unstable"``."""
+
+    def object_pixels(self, i: int) -> np.ndarray:
+        """(H,W) bool, the pixels that see object i."""
+        return self.part == object_part(i)
 
 
 def yaw_of(R: np.ndarray) -> float:

@@ -17,7 +17,9 @@ def _state(spec, pusher_xy):
         object_mask=torch.zeros(2, 2, dtype=torch.bool),
         object_pose=torch.zeros(3),
         pusher_xy=torch.tensor(pusher_xy, dtype=torch.float32),
-        object_spec=spec,
+        T_world_cam=torch.eye(4),
+        footprint_radius_m=spec.footprint_radius_m,
+        yaw_period_rad=spec.yaw_period_rad,
     )
 
 

@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 
+from planner import CostConfig, PlannerConfig
 from planner.loop import PushConfig, run_push
 from scenarios import load_scenario
 from se3push.cli import plan_push_main
@@ -109,19 +110,27 @@ def test_plan_push_wrong_number_of_goal_values_is_exit_code_2(capsys):
     assert "--goal" in capsys.readouterr().err
 
 
-def test_the_spread_weight_reaches_the_cost(monkeypatch):
+def test_the_planning_and_cost_settings_reach_the_planner(monkeypatch):
     import planner.loop as loop
 
     seen = []
-    real = loop.PushCost
+    real = loop.make_planner
 
-    def spy(scenario, goal, cfg):
-        seen.append(cfg.w_spread)
-        return real(scenario, goal, cfg)
+    def spy(name, dynamics, cost, scenario, cfg):
+        seen.append((cost.cfg.w_spread, cfg.horizon, cfg.samples, cfg.seed))
+        return real(name, dynamics, cost, scenario, cfg)
 
-    monkeypatch.setattr(loop, "PushCost", spy)
-    for w in (None, 0.25):
-        extra = {} if w is None else {"spread_weight": w}
-        run_push(PushConfig(goal=_nearby_goal(), scenario="tiny", model="no-motion", max_steps=1,
-                            **extra))  # fmt: skip
-    assert seen == [1.0, 0.25]
+    monkeypatch.setattr(loop, "make_planner", spy)
+    goal = _nearby_goal()
+    run_push(PushConfig(goal=goal, scenario="tiny", model="no-motion", max_steps=1, seed=5))
+    run_push(PushConfig(goal=goal, scenario="tiny", model="no-motion", max_steps=1, seed=5,
+                        cost=CostConfig(w_spread=0.25),
+                        planning=PlannerConfig(horizon=2, samples=9, seed=99)))  # fmt: skip
+    assert seen == [(1.0, 4, 48, 5), (0.25, 2, 9, 5)]  # the planner's seed is the push's
+
+
+@pytest.mark.parametrize("steps", ["0", "-3"])
+def test_plan_push_refuses_a_step_budget_below_one(steps, capsys):
+    code = plan_push_main(["--goal", "0.1", "0.0", "0", "--max-steps", steps])
+    assert code == 2
+    assert "--max-steps must be a positive integer" in capsys.readouterr().err

@@ -1,11 +1,13 @@
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 import planner.trials as trials_mod
+from planner import CostConfig, PlannerConfig
 from planner.trials import TrialsConfig, draw_trial, run_trials, wilson
-from scenarios import load_scenario
+from scenarios import InputError, load_scenario
 from se3push.cli import main
 from sim import PushWorld
 from sim.planar import pose_errors
@@ -134,17 +136,13 @@ def test_trials_command_and_bad_input(tmp_path, capsys):
     assert "--n and --max-steps must be positive" in capsys.readouterr().err
 
 
-def test_a_folder_from_before_the_spread_weight_resumes_and_another_weight_is_refused(tmp_path):
+def test_a_folder_of_other_planning_settings_is_refused(tmp_path):
     cfg = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1)
     run_trials(cfg, tmp_path, progress=False)
-    meta = tmp_path / "config.json"
-    old = json.loads(meta.read_text())
-    assert old.pop("spread_weight") == 1.0
-    meta.write_text(json.dumps(old))  # as written before the setting existed
-    assert run_trials(TrialsConfig("tiny", n=2, model="no-motion", max_steps=1), tmp_path,
-                      progress=False)["trials"] == 2  # fmt: skip
-    with pytest.raises(ValueError, match="spread_weight"):
-        run_trials(TrialsConfig("tiny", n=2, model="no-motion", max_steps=1, spread_weight=0.0),
-                   tmp_path, progress=False)  # fmt: skip
-    with pytest.raises(ValueError, match="--spread-weight must be a finite number"):
-        TrialsConfig("tiny", n=1, spread_weight=float("nan"))
+    assert run_trials(replace(cfg, n=2), tmp_path, progress=False)["trials"] == 2
+    with pytest.raises(InputError, match="cost.w_spread"):
+        run_trials(replace(cfg, cost=CostConfig(w_spread=0.0)), tmp_path, progress=False)
+    with pytest.raises(InputError, match="planning.horizon"):
+        run_trials(replace(cfg, planning=PlannerConfig(horizon=2)), tmp_path, progress=False)
+    with pytest.raises(InputError, match="--spread-weight"):
+        CostConfig(w_spread=float("nan"))

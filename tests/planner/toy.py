@@ -16,6 +16,7 @@ from planner.dynamics import PlanState, Rollout, integrate_pusher
 from sim.mjcf import ObjectSpec
 
 TOY_COST = CostConfig(w_shaping=0.0)
+DISK = ObjectSpec("cylinder", (0.06, 0.06, 0.05), 0.2, 0.5)
 
 
 class CarriedDisk:
@@ -38,12 +39,22 @@ def toy_state(start=(0.0, 0.0)) -> PlanState:
         object_mask=torch.ones(4, 4, dtype=torch.bool),
         object_pose=torch.tensor([start[0], start[1], 0.0]),
         pusher_xy=torch.tensor([start[0], start[1]]),
-        object_spec=ObjectSpec("cylinder", (0.06, 0.06, 0.05), 0.2, 0.5),
+        T_world_cam=torch.eye(4),
+        footprint_radius_m=DISK.footprint_radius_m,
+        yaw_period_rad=DISK.yaw_period_rad,
     )
 
 
-def optimum(cost: PushCost, state: PlanState, horizon: int, dt: float, bound: float) -> float:
-    """The exact minimum of the toy's cost over sequences within the bounds."""
+def optimum(
+    cost: PushCost,
+    state: PlanState,
+    horizon: int,
+    dt: float,
+    bound: float,
+    last_action: np.ndarray | None = None,
+) -> float:
+    """The exact minimum of the toy's cost over sequences within the bounds (``last_action``:
+    the action executed before the plan)."""
     U = cp.Variable((horizon, 2))
     c = cost.cfg
     w = np.full(horizon, np.sqrt(c.w_running))
@@ -55,7 +66,7 @@ def optimum(cost: PushCost, state: PlanState, horizon: int, dt: float, bound: fl
         xy = start + dt * cp.sum(U[: h + 1], axis=0)
         terms.append(cp.sum_squares((xy - goal[:2]) * w[h] / c.pos_scale_m))
         terms.append(c.w_action * cp.sum_squares(U[h]) / bound**2)
-        prev = cost.last_action.double().numpy() if h == 0 else U[h - 1]
+        prev = (np.zeros(2) if last_action is None else last_action) if h == 0 else U[h - 1]
         terms.append(c.w_smooth * cp.sum_squares(U[h] - prev) / bound**2)
     prob = cp.Problem(cp.Minimize(sum(terms)), [U >= -bound, U <= bound])
     prob.solve(solver=cp.CLARABEL)

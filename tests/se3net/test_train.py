@@ -175,7 +175,8 @@ def test_rollout_training_follows_the_planner_and_lowers_the_rollout_loss(tiny_d
     model.eval()
     dyn = LearnedDynamics(model, ds.scenario, name="se3net")
     state = PlanState(b["points"][0], b["valid"][0], b["part"][0] == 2, torch.zeros(3),
-                      b["u"][0, 0, 2:], None)  # fmt: skip
+                      b["u"][0, 0, 2:], torch.from_numpy(ds.camera.T_world_cam).float(),
+                      footprint_radius_m=0.05, yaw_period_rad=None)  # fmt: skip
     planned = dyn.rollout(state, b["u"][:1, :, :2], clouds=True).clouds[0]
     x = b["points"][:1]
     from se3net.train import planner_controls
