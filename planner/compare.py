@@ -20,7 +20,7 @@ import numpy as np
 from planner.loop import LOOSE, TIGHT
 from planner.trials import fmt, wilson
 from scenarios import InputError
-from sim.dataset import differences
+from scenarios.config import differences
 
 TOLERANCES = {"tight": TIGHT, "loose": LOOSE}
 """success tolerances of a trial record: (position m, yaw deg)"""

@@ -7,7 +7,7 @@ progress toward the goal each implies. Over a trial (or pooled over many) that g
 - phantom-motion rate: of the steps where the object moved less than ``STILL_M``, the
   fraction where the model predicted more than ``PHANTOM_M`` (the planner "saw" a push
   that did not happen);
-- missed-motion rate: of the steps where the object moved more than ``MOVED_M``, the
+- missed-motion rate: of the steps where the object moved more than ``PUSHED_M``, the
   fraction where the model predicted less than ``MISSED_M``;
 - progress ratio: predicted over actual progress toward the goal position, summed over the
   steps (1 is an honest model; above 1 the planner is being flattered).
@@ -24,7 +24,7 @@ STILL_M = 1e-3
 """the object counts as still below this displacement"""
 PHANTOM_M = 3e-3
 """a prediction above this over a still object is phantom motion"""
-MOVED_M = 3e-3
+PUSHED_M = 3e-3
 """the object counts as pushed above this displacement"""
 MISSED_M = 1e-3
 """a prediction below this over a pushed object is missed motion"""
@@ -76,7 +76,7 @@ def exploitation(steps: Sequence[dict[str, float]]) -> dict[str, Any]:
     """Counts, sums and rates over a sequence of :func:`step_figures` dicts."""
     pred = np.array([s["predicted_disp_m"] for s in steps], dtype=float)
     act = np.array([s["actual_disp_m"] for s in steps], dtype=float)
-    still, moved = act < STILL_M, act > MOVED_M
+    still, moved = act < STILL_M, act > PUSHED_M
     return _rates(
         {
             "still_steps": int(still.sum()),

@@ -39,13 +39,13 @@ from planner.trials import (
     worker_pool,
 )
 from scenarios import InputError, load_scenario
+from scenarios.config import differences
 from sim.dataset import (
     CONTROL_LAYOUT,
     DATA_FORMAT,
     MANIFEST,
     PLANNER_MODE,
     EpisodeRecorder,
-    differences,
     episode_stats,
     merge_stats,
 )
@@ -289,9 +289,9 @@ def table_markdown(rows: list[dict[str, Any]]) -> str:
 def plot_rounds(rows: list[dict[str, Any]], out: Path) -> None:
     """Success (with its interval) and the diagnostics against the round, with the aims:
     phantom and missed motion under 5 %, predicted/actual progress within 0.8-1.25."""
-    from sim.render import _pyplot, save_figure
+    from sim.render import pyplot, save_figure
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
     x = [r["round"] for r in rows]
     for key, label in (("success_tight", "2 cm, 10°"), ("success_loose", "5 cm, 20°")):

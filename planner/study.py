@@ -105,8 +105,7 @@ def horizon_pose_error(
 ) -> dict[str, float]:
     """Mean position (cm) and yaw (deg) error of the object's predicted pose after ``horizon``
     steps, over held-out windows where it moves, the model rolled as the planner rolls it."""
-    from se3net.data import PushDataset
-    from se3net.evaluate import _subset
+    from se3net.data import PushDataset, evenly_spaced
     from sim import object_part, pose_errors
     from sim.dataset import episode_objects
 
@@ -119,7 +118,7 @@ def horizon_pose_error(
     if len(moving) == 0:
         raise InputError(f"the test split of {data} has no window where object {object_index} "
                          f"moves over {horizon} steps; generate more data")  # fmt: skip
-    pick = moving[_subset(len(moving), max_windows)]
+    pick = moving[evenly_spaced(len(moving), max_windows)]
     if model == "oracle":  # the simulator itself (tested against the world to 1e-6)
         return {"horizon_pos_err_cm": 0.0, "horizon_yaw_err_deg": 0.0, "windows": len(pick)}
     if model == "no-motion":
@@ -158,14 +157,13 @@ def horizon_pose_error(
 def backend_accuracy(model: str, data: str | Path, *, max_examples: int) -> dict[str, Any]:
     """One-step flow and mask figures of the two ends: no-motion (zero flow, one rigid body)
     and the oracle (the true flow, the true parts as masks)."""
-    from se3net.data import PushDataset
-    from se3net.evaluate import _subset
+    from se3net.data import PushDataset, evenly_spaced
     from se3net.metrics import FlowStats, MaskStats
 
     ds = PushDataset(data, split="test", horizon=1)
     flow, masks = FlowStats(), MaskStats()
     n_parts = int(ds.a["T_world_part"].shape[2])
-    idx = _subset(len(ds), max_examples)
+    idx = evenly_spaced(len(ds), max_examples)
     for s in range(0, len(idx), 64):
         b = ds.batch(idx[s : s + 64])
         target = b["target"][:, 0]
@@ -264,9 +262,9 @@ def table_markdown(rows: list[dict[str, Any]]) -> str:
 
 def plot_study(rows: list[dict[str, Any]], out: Path) -> None:
     """Success (with its 95 % interval) against each accuracy measure, a point per model."""
-    from sim.render import _pyplot, save_figure
+    from sim.render import pyplot, save_figure
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, len(ACCURACY), figsize=(4.2 * len(ACCURACY), 4), squeeze=False)
     for ax, (key, (label, lower_better)) in zip(axes[0], ACCURACY.items(), strict=True):
         for r in rows:

@@ -29,8 +29,8 @@ from planner.cost import CostConfig
 from planner.diagnostics import pooled
 from planner.loop import PushConfig, run_push
 from scenarios import InputError, Scenario, load_scenario
+from scenarios.config import differences
 from sim import PushWorld
-from sim.dataset import differences
 from sim.planar import pose_errors
 from sim.shards import atomic_write_json
 
@@ -276,9 +276,9 @@ def run_trials(
 
 def plot_paths(records: list[dict[str, Any]], out: Path, *, title: str) -> None:
     """Object paths (start dot, path line) against their goals (crosses), coloured by success."""
-    from sim.render import _pyplot, save_figure
+    from sim.render import pyplot, save_figure
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 6))
     for r in records:
         path = np.array(r["path"])

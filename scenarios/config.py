@@ -112,3 +112,28 @@ class Scenario:
     action: ActionConfig = spec("action bounds and timing")
     noise: NoiseConfig = spec("sensor noise applied when data is read")
     goals: GoalsConfig = spec("goal distribution for trials")
+
+
+def differences(
+    old: Any,
+    new: Any,
+    *,
+    old_has: str = "folder has",
+    new_has: str = "this run asks for",
+    path: str = "",
+) -> list[str]:
+    """Where two (nested) JSON-like configurations differ, one ``"dotted.key: <old_has> X,
+    <new_has> Y"`` line each: the shared wording of every "this is not the same run" error."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        return [
+            d
+            for k in [*new, *(k for k in old if k not in new)]  # in the new config's order
+            for d in differences(
+                old.get(k),
+                new.get(k),
+                old_has=old_has,
+                new_has=new_has,
+                path=f"{path}.{k}".lstrip("."),
+            )  # fmt: skip
+        ]
+    return [] if old == new else [f"{path}: {old_has} {old!r}, {new_has} {new!r}"]

@@ -20,9 +20,10 @@ from typing import Any
 import torch
 
 from scenarios import InputError, Scenario
+from scenarios.config import differences
 from se3net.device import check_device
 from se3net.model import ModelConfig, build_model
-from sim.dataset import CONTROL_LAYOUT, code_version, differences
+from sim.dataset import CONTROL_LAYOUT, code_version
 from sim.shards import atomic_write_bytes
 
 CHECKPOINT_FORMAT = 1

@@ -25,6 +25,11 @@ VISIBLE_DEPTH_TOL_M = 0.01
 """a target stays visible if the pixel it lands on sees the same part within this depth"""
 
 
+def evenly_spaced(n: int, limit: int) -> np.ndarray:
+    """Indices of at most ``limit`` items spread evenly over ``n`` (all of them if fewer)."""
+    return np.linspace(0, n - 1, min(n, limit)).round().astype(int)
+
+
 class PushDataset(Dataset):
     """Examples ``(cloud at t, controls t..t+h-1) -> targets at t+1..t+h``.
 

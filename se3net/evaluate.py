@@ -17,8 +17,9 @@ import numpy as np
 import torch
 
 from se3net.checkpoint import DEFAULT_MODEL, load_checkpoint
-from se3net.data import PushDataset
+from se3net.data import PushDataset, evenly_spaced
 from se3net.metrics import FlowStats, MaskStats
+from se3net.rollout import rollout
 from sim.shards import portable_path
 
 MULTI_STEPS = 5
@@ -72,10 +73,6 @@ def checkpoint_names(paths: list[str | Path]) -> list[str]:
     return names
 
 
-def _subset(n: int, limit: int) -> np.ndarray:
-    return np.linspace(0, n - 1, min(n, limit)).round().astype(int)
-
-
 @torch.no_grad()
 def evaluate_checkpoint(
     path: str | Path,
@@ -93,7 +90,7 @@ def evaluate_checkpoint(
     one = PushDataset(data, split=split, horizon=1)
     model, blob = load_checkpoint(path, scenario=one.scenario, device=device)
     flow, masks = FlowStats(), MaskStats()
-    idx = _subset(len(one), max_examples)
+    idx = evenly_spaced(len(one), max_examples)
     for s in range(0, len(idx), batch):
         b = {k: v.to(device) for k, v in one.batch(idx[s : s + batch]).items()}
         pred = model(b["points"], b["u"][:, 0], b["valid"])
@@ -101,13 +98,14 @@ def evaluate_checkpoint(
         if pred.masks is not None:
             masks.add(pred.masks, b["part"], b["points"], b["target"][:, 0])
     multi = PushDataset(data, split=split, horizon=MULTI_STEPS)
+    dt = multi.scenario.action.dt_control_s
     steps = [FlowStats() for _ in range(MULTI_STEPS)]
-    idx = _subset(len(multi), max_examples // 2)
+    idx = evenly_spaced(len(multi), max_examples // 2)
     for s in range(0, len(idx), batch):
         b = {k: v.to(device) for k, v in multi.batch(idx[s : s + batch]).items()}
-        x = b["points"]
-        for k in range(MULTI_STEPS):
-            x = model(x, b["u"][:, k], b["valid"]).points
+        u = b["u"]  # the recorded commands; the pusher positions integrated from them
+        clouds = rollout(model, b["points"], b["valid"], u[..., :2], u[:, 0, 2:], dt)
+        for k, x in enumerate(clouds):
             steps[k].add(x, b["points"], b["target"][:, k], b["target_valid"][:, k])
     is_se3 = masks.n_points > 0
     return EvalResult(
@@ -115,7 +113,7 @@ def evaluate_checkpoint(
         variant=blob["model"]["variant"],
         checkpoint=portable_path(path),
         split=split,
-        examples=len(_subset(len(one), max_examples)),
+        examples=len(evenly_spaced(len(one), max_examples)),
         flow_mse=flow.mse_cm2,
         no_motion_mse=flow.no_motion_cm2,
         ratio_to_no_motion=flow.ratio,
@@ -177,10 +175,10 @@ def save_pictures(
 ) -> list[Path]:
     """For each checkpoint, a PNG of a few examples of ``split`` where an object moves: true
     parts, mask argmax (SE3-Nets), true and predicted flow magnitude, and the error."""
-    from sim.render import _pyplot, save_figure
+    from sim.render import pyplot, save_figure
 
     ds = PushDataset(data, split=split, horizon=1)
-    scan = _subset(len(ds), 400)
+    scan = evenly_spaced(len(ds), 400)
     sb = ds.batch(scan)
     obj_flow = (
         ((sb["target"][:, 0] - sb["points"]).norm(dim=1) * (sb["part"] >= 2)).flatten(1).amax(1)
@@ -190,7 +188,7 @@ def save_pictures(
     ].tolist()  # most object motion
     b = ds.batch(picks)
     written = []
-    plt = _pyplot()
+    plt = pyplot()
     for path, name in zip(paths, names or checkpoint_names(paths), strict=True):
         model, blob = load_checkpoint(path, scenario=ds.scenario)
         pred = model(b["points"], b["u"][:, 0], b["valid"])

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from scenarios import InputError, Scenario, load_scenario
+from scenarios.config import differences
 from sim.camera import associated_targets
 from sim.explore import MODES, ExplorationConfig, ExplorationPolicy, describe_exploration
 from sim.mjcf import ObjectSpec
@@ -267,31 +268,6 @@ def make_shard(cfg: DataConfig, i: int, out_dir: str) -> tuple[int, str, dict[st
     stats = merge_stats([episode_stats(ep, T_cam_world) for ep in episodes])
     stats["episodes"] = len(episodes)
     return i, digest, stats
-
-
-def differences(
-    old: Any,
-    new: Any,
-    *,
-    old_has: str = "folder has",
-    new_has: str = "this run asks for",
-    path: str = "",
-) -> list[str]:
-    """Where two (nested) JSON-like configurations differ, one ``"dotted.key: <old_has> X,
-    <new_has> Y"`` line each: the shared wording of every "this is not the same run" error."""
-    if isinstance(old, dict) and isinstance(new, dict):
-        return [
-            d
-            for k in [*new, *(k for k in old if k not in new)]  # in the new config's order
-            for d in differences(
-                old.get(k),
-                new.get(k),
-                old_has=old_has,
-                new_has=new_has,
-                path=f"{path}.{k}".lstrip("."),
-            )  # fmt: skip
-        ]
-    return [] if old == new else [f"{path}: {old_has} {old!r}, {new_has} {new!r}"]
 
 
 def open_folder(out_dir: Path, ident: dict[str, Any]) -> dict[str, Any]:

@@ -9,9 +9,8 @@ import numpy as np
 
 from scenarios import load_scenario
 from sim.camera import DepthCamera
+from sim.dataset import MOVED_M
 from sim.world import MAX_PARTS, Observation, PushWorld
-
-MOVED_M = 1e-3
 
 
 def push_toward_object(world: PushWorld, obs: Observation, rng: np.random.Generator) -> np.ndarray:
@@ -24,7 +23,7 @@ def push_toward_object(world: PushWorld, obs: Observation, rng: np.random.Genera
     return np.clip(speed * np.array([np.cos(heading), np.sin(heading)]), -bound, bound)
 
 
-def _pyplot() -> Any:
+def pyplot() -> Any:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -48,7 +47,7 @@ def draw_example(
         points: (3,H,W) input cloud, camera frame; part: (H,W) part labels (-1 none);
         flow: (3,H,W) true flow (target - input), metres.
     """
-    plt = _pyplot()
+    plt = pyplot()
     valid = part >= 0
     im = axes[0].imshow(np.where(valid, points[2], np.nan), cmap="viridis")
     fig.colorbar(im, ax=axes[0], label="depth (m)")
@@ -81,7 +80,7 @@ def save_figure(fig: Any, out: str | Path) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
     fig.savefig(out, dpi=100)
-    _pyplot().close(fig)
+    pyplot().close(fig)
 
 
 def render_scene(scenario: str, seed: int, out: str | Path, *, max_steps: int = 40) -> dict:
@@ -100,7 +99,7 @@ def render_scene(scenario: str, seed: int, out: str | Path, *, max_steps: int = 
         if after.done or moved.max() > MOVED_M:
             break
     flow = world.targets(before, after) - before.points_cam
-    fig, axes = _pyplot().subplots(1, 3, figsize=(13, 4.4))
+    fig, axes = pyplot().subplots(1, 3, figsize=(13, 4.4))
     title = f"{scenario} seed {seed}, step {step}"
     draw_example(fig, axes, world.camera, before.points_cam, before.part, flow, title)
     save_figure(fig, out)
@@ -131,7 +130,7 @@ def dataset_examples_png(root: str | Path, out: str | Path, *, n: int = 4, seed:
     picks = [
         moving[i] for i in sorted(rng.choice(len(moving), size=min(n, len(moving)), replace=False))
     ]
-    fig, axes = _pyplot().subplots(
+    fig, axes = pyplot().subplots(
         max(len(picks), 1), 3, figsize=(13, 4.2 * max(len(picks), 1)), squeeze=False
     )
     for row, (e, t) in zip(axes, picks, strict=False):
