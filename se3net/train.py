@@ -25,12 +25,13 @@ import numpy as np
 import torch
 
 from scenarios import InputError
+from scenarios.config import differences
 from se3net.checkpoint import manifest_hash, read_checkpoint, save_checkpoint
 from se3net.data import PushDataset
 from se3net.device import check_device
 from se3net.metrics import FlowStats, point_loss
 from se3net.model import ModelConfig, build_model, sharpening
-from sim.dataset import differences
+from se3net.rollout import rollout
 from sim.shards import DataError
 
 
@@ -91,26 +92,19 @@ class TrainConfig:
         check_device(self.device)
 
 
-def planner_controls(u: torch.Tensor, dt: float) -> torch.Tensor:
-    """Controls (B,N,4) as the planner forms them: the commanded velocities, and the pusher
-    position at each step's start integrated from them (the data's first position only)."""
-    start = u[:, :1, 2:]
-    moved = dt * torch.cumsum(u[:, :-1, :2], dim=1)
-    return torch.cat([u[..., :2], torch.cat([start, start + moved], 1)], -1)
-
-
 def rollout_loss(
     model: torch.nn.Module, b: dict[str, torch.Tensor], steps: int, dt: float, **sharpen: Any
 ) -> torch.Tensor:
-    """Mean point loss over an N-step rollout, each prediction fed back as the next input.
+    """Mean point loss over an N-step rollout (``se3net.rollout``: the planner's), each
+    prediction fed back as the next input.
 
     Every step's targets are where the *observed* points end up (the associations are those
     of the first frame), so the loss follows the same points the planner's pose fit follows.
     """
-    u = planner_controls(b["u"][:, :steps], dt)
-    x, total = b["points"], 0.0
-    for h in range(steps):
-        x = model(x, u[:, h], b["valid"], **sharpen).points
+    u = b["u"][:, :steps]
+    clouds = rollout(model, b["points"], b["valid"], u[..., :2], u[:, 0, 2:], dt, **sharpen)
+    total = 0.0
+    for h, x in enumerate(clouds):
         total = total + point_loss(x, b["target"][:, h], b["target_valid"][:, h], b["points"])
     return total / steps
 

@@ -179,9 +179,9 @@ def test_rollout_training_follows_the_planner_and_lowers_the_rollout_loss(tiny_d
                       footprint_radius_m=0.05, yaw_period_rad=None)  # fmt: skip
     planned = dyn.rollout(state, b["u"][:1, :, :2], clouds=True).clouds[0]
     x = b["points"][:1]
-    from se3net.train import planner_controls
+    from se3net.rollout import pusher_controls
 
-    u = planner_controls(b["u"][:1], dt)
+    u = pusher_controls(b["u"][:1, :, :2], b["u"][:1, 0, 2:], dt)
     for h in range(3):
         x = model(x, u[:, h], b["valid"][:1]).points
         assert torch.allclose(x[0], planned[h], atol=1e-6)
