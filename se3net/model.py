@@ -226,16 +226,19 @@ def transform_layer(
         their input), and the pivots (B,k,3).
     """
     B, k = masks.shape[:2]
-    pts = points.flatten(2).transpose(1, 2)  # (B,N,3)
+    x, m = points.flatten(2), masks.flatten(2)  # (B,3,N), (B,k,N)
     if centroid:
-        m = masks.flatten(2) * valid.flatten(1)[:, None]  # (B,k,N)
-        pivots = (m @ pts) / m.sum(-1, keepdim=True).clamp_min(1e-6)
+        mv = m * valid.flatten(1)[:, None]
+        pivots = (x @ mv.transpose(1, 2)).transpose(1, 2) / mv.sum(-1, keepdim=True).clamp_min(1e-6)
     else:
-        pivots = pts.new_zeros(B, k, 3)
+        pivots = points.new_zeros(B, k, 3)
     R = T[..., :3]
-    offset = pivots - torch.einsum("bkij,bkj->bki", R, pivots) + T[..., 3]  # (B,k,3)
-    moved = torch.einsum("bkij,bnj->bkni", R, pts) + offset[:, :, None]
-    y = torch.einsum("bkn,bkni->bin", masks.flatten(2), moved).view_as(points)
+    offset = pivots - (R @ pivots[..., None])[..., 0] + T[..., 3]  # (B,k,3)
+    # each point's blended affine map sum_i m_ij [R_i | offset_i], then applied: a (12 x k)
+    # by (k x N) product and 9 multiply-adds a point, not k rigid motions of every point
+    A = torch.cat([R, offset[..., None]], -1).flatten(2)  # (B,k,12)
+    blend = (A.transpose(1, 2) @ m).view(B, 3, 4, -1)  # (B,3,4,N)
+    y = ((blend[:, :, :3] * x[:, None]).sum(2) + blend[:, :, 3]).view_as(points)
     return torch.where(valid[:, None], y, points), pivots
 
 

@@ -115,26 +115,119 @@ def bench_model(*, repeats: int) -> dict[str, float]:
     return out
 
 
-def bench_planner(*, repeats: int, flow_model: str | None = None, device: str = "cpu") -> dict:
-    """Median replan time of each optimiser with each backend at the default settings, on a
-    single_box state with the pusher near the box, and the SE3-Net rollout's candidate-steps/s
-    (K = samples, H = horizon of the default config)."""
+def _bench_state(device: str = "cpu") -> tuple:
+    """The planner bench's scenario, world, state (single_box, pusher near the box) and
+    goal."""
     import torch
 
-    from planner import PLANNERS, PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
+    from planner import plan_state
     from scenarios import load_scenario
-    from se3net.device import check_device
     from sim import PushWorld
 
-    check_device(device)  # before anything is timed
     scenario = load_scenario("single_box")
     world = PushWorld(scenario)
     obs = world.reset(3)
     for _ in range(4):  # bring the pusher near the box
         d = obs.object_poses[0, :2] - obs.pusher_xy_m
         obs = world.step(0.12 * d / np.linalg.norm(d))
-    state = plan_state(obs, world)
     goal = torch.tensor([*(obs.object_poses[0, :2] + [0.1, 0.05]), 0.5])
+    return scenario, world, plan_state(obs, world), goal
+
+
+def replan_breakdown(*, repeats: int, device: str = "cpu") -> dict[str, float]:
+    """Where a default replan (cem with the shipped SE3-Net) spends its time, in ms per
+    replan: each piece timed alone at the batch a replan runs it at, times the number of
+    calls a replan makes; "optimiser and rest" is the measured replan less their sum."""
+    import torch
+
+    from planner import PlannerConfig, PushCost, make_dynamics, make_planner
+    from planner.dynamics import planar_fit
+    from se3net.se3 import params_to_transform
+
+    scenario, world, state, goal = _bench_state(device)
+    cfg = PlannerConfig()
+    K, H, n_iter = cfg.samples, cfg.horizon, cfg.iterations
+    dyn = make_dynamics("se3net", scenario, device=device)
+    net, bb = dyn.model, dyn.model.backbone
+    cost = PushCost(scenario, goal)
+    planner = make_planner("cem", dyn, cost, scenario, cfg)
+    x1 = state.points[None].to(device)
+    valid = state.valid[None].to(device)
+    xK, validK = x1.expand(K, -1, -1, -1).contiguous(), valid.expand(K, -1, -1)
+    u = torch.zeros(K, 4, device=device)
+    with torch.inference_mode():
+        encK, enc1 = net.encode(xK, validK), net.encode(x1, valid)
+        code = bb.code(encK, net.norm.controls(u))
+        masks = torch.softmax(bb.decode(code, encK), 1)
+        T = params_to_transform(net.se3_head(code).view(K, -1, 6))
+        sel = state.object_mask.flatten().nonzero()[:, 0]
+        src = xK.flatten(2)[0, :, sel].T[:, :2]
+        dst = xK.flatten(2)[:, :, sel].transpose(1, 2)[..., :2]
+        rollout = dyn.rollout(state, torch.zeros(K, H, 2))
+    from se3net.model import transform_layer
+
+    def timed(fn) -> float:
+        def run() -> None:
+            with torch.inference_mode():
+                fn()
+
+        return 1e3 * median_seconds(run, repeats=repeats)
+
+    per_call = {
+        "encoder, observed cloud (batch 1)": timed(lambda: net.encode(x1, valid)),
+        "encoder, predicted clouds": timed(lambda: net.encode(xK, validK)),
+        "mask decoder": timed(lambda: bb.decode(bb.code(enc1, net.norm.controls(u)), enc1)),
+        "SE(3) head": timed(lambda: params_to_transform(
+            net.se3_head(bb.code(enc1, net.norm.controls(u))).view(K, -1, 6))),
+        "transform layer": timed(lambda: transform_layer(xK, validK, masks, T, centroid=True)),
+        "pose fit": timed(lambda: planar_fit(src, dst, src.mean(0))),
+        "cost": timed(lambda: cost.cost(state, rollout, torch.zeros(K, H, 2),
+                                        last_action=torch.zeros(2))),
+    }  # fmt: skip
+    calls = {  # per replan: I iterations of K candidates over H steps
+        "encoder, observed cloud (batch 1)": n_iter,
+        "encoder, predicted clouds": n_iter * (H - 1),
+        "mask decoder": n_iter * H,
+        "SE(3) head": n_iter * H,
+        "transform layer": n_iter * H,
+        "pose fit": n_iter * H,
+        "cost": n_iter,
+    }
+    out = {name: per_call[name] * calls[name] for name in per_call}
+    replan = timed(lambda: planner.plan(state))
+    out["optimiser and rest"] = replan - sum(out.values())
+    out["replan"] = replan
+    return out
+
+
+def _side_by_side_replan(args: tuple[int, int]) -> float:
+    """One of several processes timing default replans at once (1 torch thread each)."""
+    import torch
+
+    from planner import PlannerConfig, PushCost, make_dynamics, make_planner
+
+    repeats, _ = args
+    torch.set_num_threads(1)
+    scenario, world, state, goal = _bench_state()
+    planner = make_planner("cem", make_dynamics("se3net", scenario), PushCost(scenario, goal),
+                           scenario, PlannerConfig())  # fmt: skip
+    return 1e3 * median_seconds(lambda: planner.plan(state), repeats=repeats, warmup=1)
+
+
+def bench_planner(*, repeats: int, flow_model: str | None = None, device: str = "cpu") -> dict:
+    """Median replan time of each optimiser with each backend at the default settings, on a
+    single_box state with the pusher near the box; where the default replan's time goes; the
+    default replan in two processes side by side; and the SE3-Net rollout's
+    candidate-steps/s (K = samples, H = horizon of the default config)."""
+    import multiprocessing
+
+    import torch
+
+    from planner import PLANNERS, PlannerConfig, PushCost, make_dynamics, make_planner
+    from se3net.device import check_device
+
+    check_device(device)  # before anything is timed
+    scenario, world, state, goal = _bench_state(device)
     cfg = PlannerConfig()
     backends = {"se3net": None, "oracle": None, "no-motion": None}
     if flow_model:
@@ -159,9 +252,14 @@ def bench_planner(*, repeats: int, flow_model: str | None = None, device: str = 
             dyn.rollout(state, U)
 
     steps_per_s = cfg.samples * cfg.horizon / median_seconds(rollout, repeats=repeats)
+    breakdown = replan_breakdown(repeats=repeats, device=device)
+    with multiprocessing.get_context("fork").Pool(2) as pool:
+        pair = pool.map(_side_by_side_replan, [(repeats, i) for i in range(2)])
     return {
         "replan_ms_median": times,
         "default": "cem/se3net",
+        "default_replan_breakdown_ms": breakdown,
+        "default_replan_ms_two_processes": float(np.median(pair)),
         "se3net_rollout_candidate_steps_per_s": steps_per_s,
         "settings": {"samples": cfg.samples, "horizon": cfg.horizon, "iterations": cfg.iterations},
     }
