@@ -6,6 +6,7 @@ action repeated). All actions stay inside the scenario's bounds.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -35,6 +36,15 @@ class PlannerConfig:
     """CEM: the SD never shrinks below this fraction of the bound"""
     colour: float = 0.0
     """CEM: temporal correlation of the noise (AR(1) coefficient; 0 = white)"""
+    shrink: float = 1.0
+    """CEM: each iteration samples this many times fewer sequences than the last (iCEM's
+    decay; at least twice the elites); 1 = the same number"""
+    keep_elites: float = 0.0
+    """CEM: share of the last replan's elites, shifted by one step, sampled again at the
+    next replan's first iteration (iCEM)"""
+    warm_std: float | None = None
+    """CEM: sampling SD when warm-started from the previous plan, as a fraction of the bound
+    (None: init_std, as at a fresh start)"""
     temperature: float = 0.05
     """MPPI: temperature on costs less their minimum, divided by (median - minimum)"""
     grad_steps: int = 10
@@ -54,6 +64,10 @@ class PlannerConfig:
                 raise InputError(f"{name} must be a positive integer, got {getattr(self, name)}")
         if self.elites > self.samples:
             raise InputError(f"elites ({self.elites}) cannot exceed samples ({self.samples})")
+        if not self.shrink >= 1.0:
+            raise InputError(f"shrink must be at least 1, got {self.shrink}")
+        if not 0.0 <= self.keep_elites <= 1.0:
+            raise InputError(f"keep_elites must be in [0, 1], got {self.keep_elites}")
 
 
 @dataclass
@@ -69,6 +83,27 @@ class PlanInfo:
     cost: float
     iterations: int
     wall_ms: float
+
+
+class Best:
+    """The lowest-cost sequence an optimiser has evaluated, with its rollout, so that the
+    chosen plan is not rolled out a second time."""
+
+    def __init__(self) -> None:
+        self.actions: torch.Tensor | None = None
+        self.cost = math.inf
+        self.rollout: Rollout | None = None
+
+    def offer(self, U: torch.Tensor, cost: torch.Tensor, rollout: Rollout) -> None:
+        """Keep the cheapest of candidates U (K,H,2) with costs (K,) if it beats the best."""
+        i = int(cost.argmin())
+        if float(cost[i]) < self.cost:
+            self.actions, self.cost = U[i].clone(), float(cost[i])
+            self.rollout = Rollout(
+                rollout.object_poses[i : i + 1].clone(),
+                rollout.pusher_xy[i : i + 1].clone(),
+                spread=None if rollout.spread is None else rollout.spread[i : i + 1].clone(),
+            )
 
 
 class Planner:
@@ -106,16 +141,23 @@ class Planner:
         """Standard normal noise (K,H,2) from the planner's generator."""
         return torch.randn(K, self.cfg.horizon, 2, generator=self.gen)
 
-    def _optimise(self, state: PlanState, U0: torch.Tensor) -> tuple[torch.Tensor, int]:
+    def _optimise(
+        self, state: PlanState, U0: torch.Tensor
+    ) -> tuple[torch.Tensor, int] | tuple[Best, int]:
+        """The plan (H,2), or the :class:`Best` candidate with its rollout, and the number of
+        iterations run, from the warm start U0 (H,2)."""
         raise NotImplementedError
 
     def plan(self, state: PlanState) -> tuple[np.ndarray, PlanInfo]:
         """The action (2,) to apply now, and the plan it came from."""
         t0 = time.perf_counter()
-        U, iterations = self._optimise(state, self.clamp(self.nominal))
-        U = self.clamp(U.detach())
-        with torch.no_grad():
-            cost, rollout = self.evaluate(state, U[None])
+        found, iterations = self._optimise(state, self.clamp(self.nominal))
+        if isinstance(found, Best):  # evaluated already: its rollout is the plan's
+            U, rollout, cost = found.actions, found.rollout, torch.tensor([found.cost])
+        else:
+            U = self.clamp(found.detach())
+            with torch.no_grad():
+                cost, rollout = self.evaluate(state, U[None])
         self.nominal = torch.cat([U[1:], U[-1:]])  # warm start for the next replan
         self.last_action = U[0].clone()
         # float32 0.15 is 0.15000000596: clip in float64 so that the world accepts the action

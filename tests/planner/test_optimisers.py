@@ -202,3 +202,61 @@ def test_mppi_plan_never_costs_more_than_its_warm_start(temperature):
             warm, _ = planner.evaluate(state, planner.nominal[None])
         _, info = planner.plan(state)
         assert info.cost <= float(warm[0]) * (1 + 1e-6), (info.cost, float(warm[0]))
+
+
+class _Counting:
+    """A dynamics wrapper that records the batch size of every rollout."""
+
+    def __init__(self, inner):
+        self.inner, self.batches = inner, []
+        self.name, self.differentiable = inner.name, inner.differentiable
+
+    def rollout(self, state, actions, *, clouds=False):
+        self.batches.append(len(actions))
+        return self.inner.rollout(state, actions, clouds=clouds)
+
+
+@pytest.mark.parametrize("name", ["cem", "mppi"])
+def test_sampling_planners_report_the_rollout_of_the_plan_without_rolling_it_again(name):
+    dyn = _Counting(CarriedDisk(DT))
+    cost = PushCost(SCENARIO, torch.tensor((0.08, 0.03, 0.0)), TOY_COST)
+    cfg = PlannerConfig(samples=16, elites=4, iterations=3)
+    planner = make_planner(name, dyn, cost, SCENARIO, cfg)
+    _, info = planner.plan(toy_state())
+    extra = 1 if name == "mppi" else 0  # mppi rolls its final weighted mean once
+    assert len(dyn.batches) == cfg.iterations + extra  # no re-roll of the chosen plan
+    again = CarriedDisk(DT).rollout(toy_state(), torch.from_numpy(info.actions).float()[None])
+    np.testing.assert_allclose(info.predicted_poses, again.object_poses[0].numpy(), atol=1e-6)
+    np.testing.assert_allclose(info.predicted_pusher, again.pusher_xy[0].numpy(), atol=1e-6)
+
+
+def test_icem_shrinks_the_population_and_keeps_shifted_elites_for_the_next_replan():
+    dyn = _Counting(CarriedDisk(DT))
+    cost = PushCost(SCENARIO, torch.tensor((0.08, 0.03, 0.0)), TOY_COST)
+    cfg = PlannerConfig(samples=40, elites=10, iterations=3, shrink=1.25, keep_elites=0.3)
+    planner = make_planner("cem", dyn, cost, SCENARIO, cfg)
+    planner.plan(toy_state())
+    assert dyn.batches == [40, 32, 26]  # 40, 40/1.25, 40/1.25^2 (rounded; >= 2 x elites)
+    kept = planner.kept.clone()
+    assert kept.shape == (3, cfg.horizon, 2)  # 30 % of the 10 elites
+    torch.testing.assert_close(kept[:, -1], kept[:, -2])  # shifted: the last action repeated
+    dyn.batches.clear()
+    planner.plan(toy_state())
+    assert dyn.batches == [43, 32, 26]  # the kept elites join the first iteration
+
+
+def test_a_warm_start_samples_with_the_warm_sd():
+    cost = PushCost(SCENARIO, torch.tensor((0.08, 0.03, 0.0)), TOY_COST)
+    seen = []
+
+    class Spy(CarriedDisk):
+        def rollout(self, state, actions, *, clouds=False):
+            seen.append((actions[1:] - actions[0]).std().item())
+            return super().rollout(state, actions, clouds=clouds)
+
+    cfg = PlannerConfig(samples=256, elites=8, iterations=1, init_std=0.5, warm_std=0.1)
+    planner = make_planner("cem", Spy(DT), cost, SCENARIO, cfg)
+    planner.plan(toy_state())
+    planner.plan(toy_state())
+    cold, warm = seen
+    assert cold > 3 * warm  # 0.5 x bound at a fresh start, 0.1 x bound warm (before clamping)
