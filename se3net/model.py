@@ -242,24 +242,31 @@ def transform_layer(
     return torch.where(valid[:, None], y, points), pivots
 
 
-class SE3Net(nn.Module):
-    """SE3-Net: masks, SE(3) transforms and the transform layer."""
+class _CloudNet(nn.Module):
+    """What the SE3-Net and the flow net share: normalisation, the backbone, the encoding."""
 
-    def __init__(self, cfg: ModelConfig):
+    def __init__(self, cfg: ModelConfig, out_channels: int):
         super().__init__()
         self.cfg = cfg
         self.norm = _Normaliser(cfg.control_dim)
-        self.backbone = _Backbone(cfg, cfg.k)
+        self.backbone = _Backbone(cfg, out_channels)
+
+    def encode(self, points: torch.Tensor, valid: torch.Tensor) -> Encoding:
+        """The cloud's part of a prediction, for :meth:`predict` (once for many controls)."""
+        return self.backbone.encode(self.norm.points(points, valid))
+
+
+class SE3Net(_CloudNet):
+    """SE3-Net: masks, SE(3) transforms and the transform layer."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__(cfg, cfg.k)
         self.se3_head = nn.Sequential(
             nn.Linear(_Backbone.CODE, 128), nn.PReLU(), nn.Linear(128, cfg.k * 6)
         )
         nn.init.zeros_(self.se3_head[-1].weight)  # every transform starts as the identity
         nn.init.zeros_(self.se3_head[-1].bias)
         self.register_buffer("gamma", torch.tensor(1.0))  # sharpening exponent used in eval
-
-    def encode(self, points: torch.Tensor, valid: torch.Tensor) -> Encoding:
-        """The cloud's part of a prediction, for :meth:`predict` (once for many controls)."""
-        return self.backbone.encode(self.norm.points(points, valid))
 
     def predict(
         self,
@@ -317,20 +324,13 @@ class SE3Net(nn.Module):
         return self.predict(points, u, valid, enc, sigma=sigma, gamma=gamma, generator=generator)
 
 
-class FlowNet(nn.Module):
+class FlowNet(_CloudNet):
     """The paper's flow baseline: a conv/deconv net that predicts per-point 3D flow."""
 
     def __init__(self, cfg: ModelConfig):
-        super().__init__()
-        self.cfg = cfg
-        self.norm = _Normaliser(cfg.control_dim)
-        self.backbone = _Backbone(cfg, 3)
+        super().__init__(cfg, 3)
         nn.init.zeros_(self.backbone.head.weight)  # starts predicting no motion
         nn.init.zeros_(self.backbone.head.bias)
-
-    def encode(self, points: torch.Tensor, valid: torch.Tensor) -> Encoding:
-        """The cloud's part of a prediction, for :meth:`predict` (once for many controls)."""
-        return self.backbone.encode(self.norm.points(points, valid))
 
     def predict(
         self,
