@@ -20,6 +20,7 @@ positions over the horizon. Backends:
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
@@ -182,7 +183,11 @@ class LearnedDynamics:
         device: str = "cpu",
         carry_masks: bool = False,
     ):
-        self.model, self.name, self.device = model.eval(), name, torch.device(device)
+        # planning differentiates with respect to the actions only: a frozen copy of the
+        # weights spares the backward pass their gradients (grad and SQP planners) and leaves
+        # the caller's model as it was
+        self.model = copy.deepcopy(model).eval().requires_grad_(False)
+        self.name, self.device = name, torch.device(device)
         self.dt = scenario.action.dt_control_s
         self.carry_masks = carry_masks
 

@@ -186,9 +186,14 @@ def test_rollout_training_follows_the_planner_and_lowers_the_rollout_loss(tiny_d
         x = model(x, u[:, h], b["valid"][:1]).points
         assert torch.allclose(x[0], planned[h], atol=1e-6)
     model.train()
+    # Transforms start as the identity, where the masks' gradients are pure rounding noise
+    # that Adam scales up to full steps: start from small transforms, so that whether the
+    # loss falls depends on the rollout's gradients and not on the order of float sums.
+    with torch.no_grad():
+        model.se3_head[-1].weight.normal_(0, 0.001, generator=torch.Generator().manual_seed(0))
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)
     first = float(rollout_loss(model, b, 3, dt).detach())
-    for _ in range(100):
+    for _ in range(200):
         opt.zero_grad()
         rollout_loss(model, b, 3, dt).backward()
         opt.step()
