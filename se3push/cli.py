@@ -350,7 +350,8 @@ def _parser() -> argparse.ArgumentParser:
     s.set_defaults(run=_cmd_improve)
 
     s = sub.add_parser("bench", help="time the hot paths (medians over repeats)")
-    s.add_argument("what", choices=["world", "data", "model", "planner"], help="which benchmark")
+    s.add_argument("what", choices=["world", "data", "model", "planner", "sampling"],
+                   help="which benchmark")  # fmt: skip
     s.add_argument("--repeats", type=int, default=20, help="timed repeats per figure")
     s.add_argument("--json", default=None, metavar="PATH", help="also write the figures as JSON")
     s.add_argument("--flow-model", default=None, help="planner: also time a flow-net checkpoint")

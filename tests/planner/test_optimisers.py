@@ -12,7 +12,9 @@ from tests.planner.toy import TOY_COST, CarriedDisk, optimum, toy_state
 SCENARIO = load_scenario("single_box")
 DT, BOUND = SCENARIO.action.dt_control_s, SCENARIO.action.max_speed_m_s
 STRONG = {
-    "cem": PlannerConfig(samples=256, elites=16, iterations=8),
+    # plain CEM with a large budget (white noise, a constant population), as before the
+    # iCEM defaults: this test is about the optimiser converging, not about few rollouts
+    "cem": PlannerConfig(samples=256, elites=16, iterations=8, colour=0.0, shrink=1.0),
     "mppi": PlannerConfig(samples=512, iterations=20, init_std=0.2, temperature=0.02),
     "grad": PlannerConfig(grad_steps=150, grad_lr=0.01),
     "sqp": PlannerConfig(iterations=8, trust_radius=0.15),
