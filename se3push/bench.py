@@ -134,37 +134,26 @@ def _bench_state(device: str = "cpu") -> tuple:
     return scenario, world, plan_state(obs, world), goal
 
 
-def replan_breakdown(*, repeats: int, device: str = "cpu") -> dict[str, float]:
+def replan_breakdown(replan_ms: float, *, repeats: int, device: str = "cpu") -> dict[str, float]:
     """Where a default replan (cem with the shipped SE3-Net) spends its time, in ms per
-    replan: each piece timed alone at the batch a replan runs it at, times the number of
-    calls a replan makes; "optimiser and rest" is the measured replan less their sum."""
+    replan: each piece timed alone at the batch each iteration runs it at (the population
+    shrinks), times the number of calls; "optimiser and rest" is ``replan_ms``, the default
+    replan measured in the planner table, less their sum."""
     import torch
 
-    from planner import PlannerConfig, PushCost, make_dynamics, make_planner
+    from planner import PlannerConfig, PushCost, make_dynamics
     from planner.dynamics import planar_fit
+    from se3net.model import transform_layer
     from se3net.se3 import params_to_transform
 
     scenario, world, state, goal = _bench_state(device)
     cfg = PlannerConfig()
-    K, H, n_iter = cfg.samples, cfg.horizon, cfg.iterations
+    H = cfg.horizon
     dyn = make_dynamics("se3net", scenario, device=device)
     net, bb = dyn.model, dyn.model.backbone
     cost = PushCost(scenario, goal)
-    planner = make_planner("cem", dyn, cost, scenario, cfg)
-    x1 = state.points[None].to(device)
-    valid = state.valid[None].to(device)
-    xK, validK = x1.expand(K, -1, -1, -1).contiguous(), valid.expand(K, -1, -1)
-    u = torch.zeros(K, 4, device=device)
-    with torch.inference_mode():
-        encK, enc1 = net.encode(xK, validK), net.encode(x1, valid)
-        code = bb.code(encK, net.norm.controls(u))
-        masks = torch.softmax(bb.decode(code, encK), 1)
-        T = params_to_transform(net.se3_head(code).view(K, -1, 6))
-        sel = state.object_mask.flatten().nonzero()[:, 0]
-        src = xK.flatten(2)[0, :, sel].T[:, :2]
-        dst = xK.flatten(2)[:, :, sel].transpose(1, 2)[..., :2]
-        rollout = dyn.rollout(state, torch.zeros(K, H, 2))
-    from se3net.model import transform_layer
+    x1, valid = state.points[None].to(device), state.valid[None].to(device)
+    sel = state.object_mask.flatten().nonzero()[:, 0]
 
     def timed(fn) -> float:
         def run() -> None:
@@ -173,30 +162,37 @@ def replan_breakdown(*, repeats: int, device: str = "cpu") -> dict[str, float]:
 
         return 1e3 * median_seconds(run, repeats=repeats)
 
-    per_call = {
-        "encoder, observed cloud (batch 1)": timed(lambda: net.encode(x1, valid)),
-        "encoder, predicted clouds": timed(lambda: net.encode(xK, validK)),
-        "mask decoder": timed(lambda: bb.decode(bb.code(enc1, net.norm.controls(u)), enc1)),
-        "SE(3) head": timed(lambda: params_to_transform(
-            net.se3_head(bb.code(enc1, net.norm.controls(u))).view(K, -1, 6))),
-        "transform layer": timed(lambda: transform_layer(xK, validK, masks, T, centroid=True)),
-        "pose fit": timed(lambda: planar_fit(src, dst, src.mean(0))),
-        "cost": timed(lambda: cost.cost(state, rollout, torch.zeros(K, H, 2),
-                                        last_action=torch.zeros(2))),
-    }  # fmt: skip
-    calls = {  # per replan: I iterations of K candidates over H steps
-        "encoder, observed cloud (batch 1)": n_iter,
-        "encoder, predicted clouds": n_iter * (H - 1),
-        "mask decoder": n_iter * H,
-        "SE(3) head": n_iter * H,
-        "transform layer": n_iter * H,
-        "pose fit": n_iter * H,
-        "cost": n_iter,
-    }
-    out = {name: per_call[name] * calls[name] for name in per_call}
-    replan = timed(lambda: planner.plan(state))
-    out["optimiser and rest"] = replan - sum(out.values())
-    out["replan"] = replan
+    def pieces(K: int) -> dict[str, tuple[int, Callable[[], object]]]:
+        """(calls per iteration, timed call) of each piece at a population of K."""
+        xK, validK = x1.expand(K, -1, -1, -1).contiguous(), valid.expand(K, -1, -1)
+        u, U = torch.zeros(K, 4, device=device), torch.zeros(K, H, 2)
+        with torch.inference_mode():
+            enc1, encK = net.encode(x1, valid), net.encode(xK, validK)
+            code = bb.code(encK, net.norm.controls(u))
+            masks = torch.softmax(bb.decode(code, encK), 1)
+            T = params_to_transform(net.se3_head(code).view(K, -1, 6))
+            src = xK.flatten(2)[0, :, sel].T[:, :2]
+            dst = xK.flatten(2)[:, :, sel].transpose(1, 2)[..., :2]
+            rollout = dyn.rollout(state, U)
+        return {
+            "encoder, observed cloud (batch 1)": (1, lambda: net.encode(x1, valid)),
+            "encoder, predicted clouds": (H - 1, lambda: net.encode(xK, validK)),
+            "mask decoder": (H, lambda: bb.decode(code, enc1)),
+            "SE(3) head": (H, lambda: params_to_transform(
+                net.se3_head(bb.code(enc1, net.norm.controls(u))).view(K, -1, 6))),
+            "transform layer": (H, lambda: transform_layer(xK, validK, masks, T, centroid=True)),
+            "pose fit": (H, lambda: planar_fit(src, dst, src.mean(0))),
+            "cost": (1, lambda: cost.cost(state, rollout, U, last_action=torch.zeros(2))),
+        }  # fmt: skip
+
+    out: dict[str, float] = {}
+    kept = round(cfg.keep_elites * cfg.elites)
+    for it in range(cfg.iterations):
+        K = max(2 * cfg.elites, round(cfg.samples / cfg.shrink**it)) + (kept if it == 0 else 0)
+        for name, (calls, fn) in pieces(K).items():
+            out[name] = out.get(name, 0.0) + calls * timed(fn)
+    out["optimiser and rest"] = replan_ms - sum(out.values())
+    out["replan"] = replan_ms
     return out
 
 
@@ -243,7 +239,7 @@ def bench_planner(*, repeats: int, flow_model: str | None = None, device: str = 
                 continue
             planner = make_planner(name, dyn, PushCost(scenario, goal), scenario, cfg)
             n = max(3, repeats // 4) if backend == "oracle" or name in ("grad", "sqp") else repeats
-            times[key] = 1e3 * median_seconds(lambda p=planner: p.plan(state), repeats=n, warmup=1)
+            times[key] = 1e3 * median_seconds(lambda p=planner: p.plan(state), repeats=n, warmup=2)
     dyn = make_dynamics("se3net", scenario, device=device)
     U = torch.zeros(cfg.samples, cfg.horizon, 2)
 
@@ -252,7 +248,7 @@ def bench_planner(*, repeats: int, flow_model: str | None = None, device: str = 
             dyn.rollout(state, U)
 
     steps_per_s = cfg.samples * cfg.horizon / median_seconds(rollout, repeats=repeats)
-    breakdown = replan_breakdown(repeats=repeats, device=device)
+    breakdown = replan_breakdown(times["cem/se3net"], repeats=repeats, device=device)
     with multiprocessing.get_context("fork").Pool(2) as pool:
         pair = pool.map(_side_by_side_replan, [(repeats, i) for i in range(2)])
     return {
