@@ -262,23 +262,32 @@ def bench_planner(*, repeats: int, flow_model: str | None = None, device: str = 
 
 
 SAMPLERS = {
-    "cem 48x3 (v0 default)": {},
-    "cem 24x3": {"samples": 24, "elites": 4},
-    "icem 32/1.25, colour 0.5": {
-        "samples": 32, "shrink": 1.25, "keep_elites": 0.3, "warm_std": 0.25, "colour": 0.5
+    "cem 48x3 (v0 default)": {
+        "samples": 48, "elites": 6, "colour": 0.0, "shrink": 1.0, "keep_elites": 0.0,
+        "warm_std": None,
+    },
+    "cem 24x3": {
+        "samples": 24, "elites": 4, "colour": 0.0, "shrink": 1.0, "keep_elites": 0.0,
+        "warm_std": None,
+    },
+    "icem 32/1.25, colour 0.5, 6 elites (default)": {
+        "samples": 32, "elites": 6, "shrink": 1.25, "keep_elites": 0.3, "warm_std": 0.25,
+        "colour": 0.5,
     },
     "icem 24/1.25, colour 0.5": {
         "samples": 24, "elites": 4, "shrink": 1.25, "keep_elites": 0.3, "warm_std": 0.25,
         "colour": 0.5,
     },
     "icem 24/1.25, white noise": {
-        "samples": 24, "elites": 4, "shrink": 1.25, "keep_elites": 0.3, "warm_std": 0.25
+        "samples": 24, "elites": 4, "shrink": 1.25, "keep_elites": 0.3, "warm_std": 0.25,
+        "colour": 0.0,
     },
     "icem 16x3, colour 0.5": {
-        "samples": 16, "elites": 4, "keep_elites": 0.5, "warm_std": 0.25, "colour": 0.5
+        "samples": 16, "elites": 4, "shrink": 1.0, "keep_elites": 0.5, "warm_std": 0.25,
+        "colour": 0.5,
     },
 }  # fmt: skip
-"""the CEM settings ``bench sampling`` compares (PlannerConfig fields over the v0 defaults)"""
+"""the CEM settings ``bench sampling`` compares (PlannerConfig fields over the defaults)"""
 
 
 def bench_sampling(*, repeats: int, pushes: int = 3, steps: int = 16) -> dict:
