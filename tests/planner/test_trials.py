@@ -146,3 +146,31 @@ def test_a_folder_of_other_planning_settings_is_refused(tmp_path):
         run_trials(replace(cfg, planning=PlannerConfig(horizon=2)), tmp_path, progress=False)
     with pytest.raises(InputError, match="--spread-weight"):
         CostConfig(w_spread=float("nan"))
+
+
+def _threads_record(cfg, i):
+    import torch
+
+    return {"trial": i, "threads": torch.get_num_threads(), "success_tight": False}
+
+
+@pytest.mark.parametrize(("workers", "threads", "expected"), [(2, None, 1), (2, 3, 3), (1, 1, 1)])
+def test_each_trial_worker_runs_with_its_share_of_threads(workers, threads, expected, monkeypatch,
+                                                          tmp_path):  # fmt: skip
+    """Two workers on two cores get one torch thread each (not two each: they would fight)."""
+    import os
+
+    import torch
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(trials_mod, "run_trial", _threads_record)
+    monkeypatch.setattr(trials_mod, "summarize", lambda records: {"trials": len(records)})
+    monkeypatch.setattr(trials_mod, "plot_paths", lambda *a, **k: None)
+    before = torch.get_num_threads()
+    cfg = TrialsConfig("tiny", n=2, model="no-motion", max_steps=1)
+    run_trials(cfg, tmp_path, workers=workers, threads=threads, progress=False)
+    lines = (tmp_path / "trials.jsonl").read_text().splitlines()
+    assert {json.loads(line)["threads"] for line in lines} == {expected}
+    assert torch.get_num_threads() == before  # the caller's setting is restored
+    with pytest.raises(InputError, match="--threads must be at least 1"):
+        run_trials(cfg, tmp_path / "x", workers=1, threads=0, progress=False)
