@@ -109,7 +109,10 @@ class SQPPlanner(Planner):
         hi.value = np.minimum(self.bound - u, radius)
         lo.value = np.minimum(np.maximum(-self.bound - u, -radius), hi.value)
         try:
-            prob.solve(solver=cp.OSQP, warm_start=True, eps_abs=1e-7, eps_rel=1e-7)
+            # no warm start: OSQP refuses cvxpy's in-place update of the bounds after a
+            # rejected step ("osqp_update_data_vec: Problem data validation") and cvxpy then
+            # reports the previous QP's solution as optimal; a fresh setup costs ~1 ms
+            prob.solve(solver=cp.OSQP, warm_start=False, eps_abs=1e-7, eps_rel=1e-7)
         except cp.SolverError:
             return None
         # at its iteration limit (status user_limit) OSQP's iterate may lie outside the box
@@ -117,7 +120,9 @@ class SQPPlanner(Planner):
             return None
         if not np.all(np.isfinite(d.value)):
             return None
-        return np.clip(d.value, lo.value, hi.value)  # an inaccurate solution's small violations
+        if np.max(np.maximum(d.value - hi.value, lo.value - d.value)) > 1e-6:
+            return None  # a solution of another QP, or of none: not a step of this one
+        return np.clip(d.value, lo.value, hi.value)  # an inaccurate solution's tiny violations
 
     def _optimise(self, state: PlanState, U0: torch.Tensor) -> tuple[torch.Tensor, int]:
         _require_gradients(self)
