@@ -23,7 +23,8 @@ class PlannerConfig:
     """Settings shared by the optimisers (each reads the ones it uses).
 
     The CEM defaults are iCEM's (Pinneri et al., 2020): 32, 26 and 20 sequences over 3
-    iterations (78 rollouts a replan, against 144 for the earlier 48 x 3 with white noise),
+    iterations (78 rollouts a replan, 80 with the 2 kept elites, against 144 for the earlier
+    48 x 3 with white noise),
     correlated noise, 30 % of the elites kept, a warm SD of a quarter of the bound. Chosen on
     50 paired single_box trials against the earlier settings (README: real-time
     replanning); 24/19/15 was faster but lost success."""
@@ -64,6 +65,11 @@ class PlannerConfig:
     seed: int = 0
     """seed of the planner's generator"""
 
+    def population(self, iteration: int) -> int:
+        """CEM: sequences sampled at an iteration (0-based), before kept elites join the
+        first: ``samples`` shrunk by ``shrink`` each iteration, at least twice the elites."""
+        return max(2 * self.elites, round(self.samples / self.shrink**iteration))
+
     def __post_init__(self) -> None:
         for name in ("horizon", "samples", "iterations", "elites", "grad_steps"):
             if getattr(self, name) < 1:
@@ -74,6 +80,13 @@ class PlannerConfig:
             raise InputError(f"shrink must be at least 1, got {self.shrink}")
         if not 0.0 <= self.keep_elites <= 1.0:
             raise InputError(f"keep_elites must be in [0, 1], got {self.keep_elites}")
+        if not 0.0 <= self.colour < 1.0:
+            raise InputError(f"colour must be in [0, 1), got {self.colour}")
+        for name in ("init_std", "min_std", "temperature", "grad_lr", "trust_radius"):
+            if not getattr(self, name) > 0:
+                raise InputError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.warm_std is not None and not self.warm_std > 0:
+            raise InputError(f"warm_std must be positive or None, got {self.warm_std}")
 
 
 @dataclass
@@ -102,8 +115,9 @@ class Best:
 
     def offer(self, U: torch.Tensor, cost: torch.Tensor, rollout: Rollout) -> None:
         """Keep the cheapest of candidates U (K,H,2) with costs (K,) if it beats the best."""
+        cost = cost.nan_to_num(nan=math.inf)  # a NaN never wins (argmin would pick it)
         i = int(cost.argmin())
-        if float(cost[i]) < self.cost:
+        if self.actions is None or float(cost[i]) < self.cost:
             self.actions, self.cost = U[i].clone(), float(cost[i])
             self.rollout = Rollout(
                 rollout.object_poses[i : i + 1].clone(),

@@ -32,7 +32,7 @@ class CEMPlanner(Planner):
         mean, std = U0.clone(), torch.full_like(U0, sd * self.bound)
         best = Best()
         for it in range(c.iterations):
-            n = max(2 * c.elites, round(c.samples / c.shrink**it))
+            n = c.population(it)
             eps = self.noise(n)
             if c.colour > 0:  # AR(1): noise correlated along the horizon
                 for h in range(1, c.horizon):

@@ -188,7 +188,7 @@ def replan_breakdown(replan_ms: float, *, repeats: int, device: str = "cpu") -> 
     out: dict[str, float] = {}
     kept = round(cfg.keep_elites * cfg.elites)
     for it in range(cfg.iterations):
-        K = max(2 * cfg.elites, round(cfg.samples / cfg.shrink**it)) + (kept if it == 0 else 0)
+        K = cfg.population(it) + (kept if it == 0 else 0)
         for name, (calls, fn) in pieces(K).items():
             out[name] = out.get(name, 0.0) + calls * timed(fn)
     out["optimiser and rest"] = replan_ms - sum(out.values())
@@ -293,10 +293,11 @@ SAMPLERS = {
 def bench_sampling(*, repeats: int, pushes: int = 3, steps: int = 16) -> dict:
     """Plan quality against rollouts for CEM settings, with the shipped SE3-Net on single_box.
 
-    States come from ``pushes`` closed loops of ``steps`` steps (the v0 defaults, trial seed
-    7, which no trial table uses); each setting replans along them in order, warm-starting
-    itself, one torch thread. At every state a strong CEM (128 samples, 12 elites, 6
-    iterations), warm-started the same way, plans too; a setting's excess cost is its plan's
+    States come from ``pushes`` closed loops of ``steps`` steps (the default planner, trial
+    seed 7, which no trial table uses); each setting replans along them in order,
+    warm-starting itself, one torch thread. At every state a strong CEM (128 samples, 12
+    elites, 6 iterations, over the defaults), starting from the setting's warm start and last
+    action (its own kept elites aside), plans too; a setting's excess cost is its plan's
     cost over the better of the two, relative to the strong plan's (0: as good).
     """
     import dataclasses
@@ -342,10 +343,8 @@ def bench_sampling(*, repeats: int, pushes: int = 3, steps: int = 16) -> dict:
                     ms.append(info.wall_ms)
                     ref = strong.plan(state)[1].cost
                     excess.append((info.cost - min(ref, info.cost)) / max(ref, 1e-9))
-            n = [max(2 * cfg.elites, round(cfg.samples / cfg.shrink**k)) for k in
-                 range(cfg.iterations)]  # fmt: skip
             out[name] = {
-                "candidates_per_replan": sum(n),
+                "candidates_per_replan": sum(cfg.population(k) for k in range(cfg.iterations)),
                 "replan_ms_median_1_thread": float(np.median(ms)),
                 "excess_cost_median": float(np.median(excess)),
                 "excess_cost_mean": float(np.mean(excess)),
