@@ -68,6 +68,9 @@ class CostConfig:
             if not (math.isfinite(value) and value >= 0):
                 what = "--spread-weight" if name == "w_spread" else f"cost setting {name}"
                 raise InputError(f"{what} must be a finite number >= 0, got {value}")
+        for name in ("pos_scale_m", "yaw_scale_rad", "shaping_scale_m", "moving_m"):
+            if not getattr(self, name) > 0:  # the scales divide
+                raise InputError(f"cost setting {name} must be positive, got {getattr(self, name)}")
 
 
 def check_goal(scenario: Scenario, goal: torch.Tensor | tuple[float, float, float]) -> torch.Tensor:

@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 import math
 import multiprocessing
-import os
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
@@ -156,13 +155,16 @@ def summary_cells(s: dict[str, Any]) -> dict[str, str]:
 
 
 def threads_per_worker(workers: int, threads: int | None = None) -> int:
-    """torch threads for each of ``workers`` processes: ``threads`` if given, else the
-    machine's cores shared out among them (at least one), so that workers do not fight."""
-    if threads is not None:
-        if threads < 1:
-            raise InputError(f"--threads must be at least 1, got {threads}")
-        return threads
-    return max(1, (os.cpu_count() or 1) // workers)
+    """torch threads for each of ``workers`` processes: ``threads`` if given, else one.
+
+    One by default, whatever the number of workers: workers on their own cores do not fight,
+    and the records are the same for any ``--workers`` (a different thread count sums floats
+    in another order, and a closed loop can grow a 1e-7 difference into another trial)."""
+    if threads is None:
+        return 1
+    if threads < 1:
+        raise InputError(f"--threads must be at least 1, got {threads}")
+    return threads
 
 
 @contextmanager

@@ -155,7 +155,8 @@ def _planning_options(s: argparse.ArgumentParser) -> None:
     s.add_argument("--horizon", type=int, default=d.horizon,
                    help=f"actions per plan, 0.15 s each (default {d.horizon})")  # fmt: skip
     s.add_argument("--samples", type=int, default=d.samples,
-                   help=f"candidate sequences per iteration (default {d.samples})")  # fmt: skip
+                   help=f"candidate sequences (cem: in the first iteration; default "
+                   f"{d.samples})")  # fmt: skip
     s.add_argument("--iterations", type=int, default=d.iterations,
                    help=f"optimiser iterations per replan (default {d.iterations})")  # fmt: skip
     s.add_argument("--elites", type=int, default=d.elites,
@@ -306,7 +307,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     _planning_options(s)
     s.add_argument("--threads", type=int, default=None,
-                   help="torch threads per worker (default: the cores shared out)")  # fmt: skip
+                   help="torch threads per worker (default 1: the same records for any "
+                   "--workers)")  # fmt: skip
     s.add_argument("--out", required=True, help="folder for trials.jsonl, summary.json, paths.png")
     s.set_defaults(run=_cmd_trials)
 

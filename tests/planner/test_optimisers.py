@@ -263,3 +263,33 @@ def test_a_warm_start_samples_with_the_warm_sd():
     planner.plan(toy_state())
     cold, warm = seen
     assert cold > 3 * warm  # 0.5 x bound at a fresh start, 0.1 x bound warm (before clamping)
+
+
+class _NaNDisk(CarriedDisk):
+    """Predicts NaN poses for every sequence but the first of each batch."""
+
+    def rollout(self, state, actions, *, clouds=False):
+        r = super().rollout(state, actions, clouds=clouds)
+        poses = r.object_poses.clone()
+        poses[1:] = float("nan")
+        return type(r)(poses, r.pusher_xy)
+
+
+@pytest.mark.parametrize("name", ["cem", "mppi"])
+def test_a_nan_cost_never_becomes_the_plan(name):
+    cost = PushCost(SCENARIO, torch.tensor((0.08, 0.03, 0.0)), TOY_COST)
+    planner = make_planner(name, _NaNDisk(DT), cost, SCENARIO, PlannerConfig(samples=16))
+    a, info = planner.plan(toy_state())
+    assert np.all(np.isfinite(a)) and np.isfinite(info.cost)
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("colour", 1.0), ("colour", -0.1), ("warm_std", 0.0), ("temperature", 0.0), ("shrink", 0.5),
+     ("keep_elites", 1.5), ("init_std", -1.0)],
+)  # fmt: skip
+def test_unusable_planner_settings_are_refused(field, value):
+    from scenarios import InputError
+
+    with pytest.raises(InputError, match=field):
+        PlannerConfig(**{field: value})

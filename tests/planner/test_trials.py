@@ -146,6 +146,8 @@ def test_a_folder_of_other_planning_settings_is_refused(tmp_path):
         run_trials(replace(cfg, planning=PlannerConfig(horizon=2)), tmp_path, progress=False)
     with pytest.raises(InputError, match="--spread-weight"):
         CostConfig(w_spread=float("nan"))
+    with pytest.raises(InputError, match="pos_scale_m must be positive"):
+        CostConfig(pos_scale_m=0.0)
 
 
 def _threads_record(cfg, i):
@@ -154,15 +156,15 @@ def _threads_record(cfg, i):
     return {"trial": i, "threads": torch.get_num_threads(), "success_tight": False}
 
 
-@pytest.mark.parametrize(("workers", "threads", "expected"), [(2, None, 1), (2, 3, 3), (1, 1, 1)])
-def test_each_trial_worker_runs_with_its_share_of_threads(workers, threads, expected, monkeypatch,
+@pytest.mark.parametrize(
+    ("workers", "threads", "expected"), [(2, None, 1), (1, None, 1), (2, 3, 3)]
+)
+def test_each_trial_worker_runs_with_the_threads_asked_for(workers, threads, expected, monkeypatch,
                                                           tmp_path):  # fmt: skip
-    """Two workers on two cores get one torch thread each (not two each: they would fight)."""
-    import os
-
+    """Trial workers get one torch thread each unless told otherwise (two workers on two cores
+    with two threads each would fight, and records would depend on the number of workers)."""
     import torch
 
-    monkeypatch.setattr(os, "cpu_count", lambda: 2)
     monkeypatch.setattr(trials_mod, "run_trial", _threads_record)
     monkeypatch.setattr(trials_mod, "summarize", lambda records: {"trials": len(records)})
     monkeypatch.setattr(trials_mod, "plot_paths", lambda *a, **k: None)
