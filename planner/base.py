@@ -120,9 +120,11 @@ class Best:
         if self.actions is None or float(cost[i]) < self.cost:
             self.actions, self.cost = U[i].clone(), float(cost[i])
             self.rollout = Rollout(
-                rollout.object_poses[i : i + 1].clone(),
-                rollout.pusher_xy[i : i + 1].clone(),
-                spread=None if rollout.spread is None else rollout.spread[i : i + 1].clone(),
+                rollout.object_poses[i : i + 1].detach().clone(),
+                rollout.pusher_xy[i : i + 1].detach().clone(),
+                spread=None
+                if rollout.spread is None
+                else rollout.spread[i : i + 1].detach().clone(),
             )
 
 

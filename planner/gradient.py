@@ -8,7 +8,7 @@ import cvxpy as cp
 import numpy as np
 import torch
 
-from planner.base import Planner
+from planner.base import Best, Planner
 from planner.dynamics import PlanState
 from scenarios import InputError
 
@@ -28,29 +28,27 @@ class GradPlanner(Planner):
 
     name = "grad"
 
-    def _optimise(self, state: PlanState, U0: torch.Tensor) -> tuple[torch.Tensor, int]:
+    def _optimise(self, state: PlanState, U0: torch.Tensor) -> tuple[Best, int]:
         _require_gradients(self)
         c = self.cfg
         starts = self.clamp(U0 + c.init_std * self.bound * self.noise(c.grad_init_samples))
         starts[0] = U0
+        best = Best()
         with torch.inference_mode():
-            cost, _ = self.evaluate(state, starts)
-        U = starts[int(cost.argmin())].clone().requires_grad_()
-        best, best_cost = U.detach().clone(), float(cost.min())
+            cost, rollout = self.evaluate(state, starts)
+        best.offer(starts, cost, rollout)
+        U = best.actions.clone().requires_grad_()
         opt = torch.optim.Adam([U], lr=c.grad_lr)
         for _ in range(c.grad_steps):
-            cost, _ = self.evaluate(state, U[None])
-            if float(cost.detach()) < best_cost:
-                best, best_cost = U.detach().clone(), float(cost.detach())
+            cost, rollout = self.evaluate(state, U[None])
+            best.offer(U.detach()[None], cost.detach(), rollout)
             opt.zero_grad()
             cost.sum().backward()
             opt.step()
             with torch.no_grad():
                 U.clamp_(-self.bound, self.bound)
         with torch.no_grad():
-            cost, _ = self.evaluate(state, U[None])
-        if float(cost) < best_cost:
-            best = U.detach().clone()
+            best.offer(U.detach()[None], *self.evaluate(state, U[None]))
         return best, c.grad_steps
 
 

@@ -219,15 +219,19 @@ class _Counting:
         return self.inner.rollout(state, actions, clouds=clouds)
 
 
-@pytest.mark.parametrize("name", ["cem", "mppi"])
-def test_sampling_planners_report_the_rollout_of_the_plan_without_rolling_it_again(name):
+@pytest.mark.parametrize("name", ["cem", "mppi", "grad"])
+def test_planners_report_the_rollout_of_the_plan_without_rolling_it_again(name):
     dyn = _Counting(CarriedDisk(DT))
     cost = PushCost(SCENARIO, torch.tensor((0.08, 0.03, 0.0)), TOY_COST)
-    cfg = PlannerConfig(samples=16, elites=4, iterations=3)
+    cfg = PlannerConfig(samples=16, elites=4, iterations=3, grad_steps=5)
     planner = make_planner(name, dyn, cost, SCENARIO, cfg)
     _, info = planner.plan(toy_state())
-    extra = 1 if name == "mppi" else 0  # mppi rolls its final weighted mean once
-    assert len(dyn.batches) == cfg.iterations + extra  # no re-roll of the chosen plan
+    rollouts = {  # no re-roll of the chosen plan
+        "cem": cfg.iterations,
+        "mppi": cfg.iterations + 1,  # its final weighted mean, once
+        "grad": 1 + cfg.grad_steps + 1,  # the starts, each Adam step, the last step's result
+    }
+    assert len(dyn.batches) == rollouts[name]
     again = CarriedDisk(DT).rollout(toy_state(), torch.from_numpy(info.actions).float()[None])
     np.testing.assert_allclose(info.predicted_poses, again.object_poses[0].numpy(), atol=1e-6)
     np.testing.assert_allclose(info.predicted_pusher, again.pusher_xy[0].numpy(), atol=1e-6)
