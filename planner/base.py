@@ -24,8 +24,8 @@ class PlannerConfig:
 
     The CEM defaults are iCEM's (Pinneri et al., 2020): 32, 26 and 20 sequences over 3
     iterations (78 rollouts a replan, 80 with the 2 kept elites, against 144 for the earlier
-    48 x 3 with white noise),
-    correlated noise, 30 % of the elites kept, a warm SD of a quarter of the bound. Chosen on
+    48 x 3 with white noise), correlated noise, 30 % of the elites kept, a warm SD of a
+    quarter of the bound. Chosen on
     50 paired single_box trials against the earlier settings (README: real-time
     replanning); 24/19/15 was faster but lost success."""
 

@@ -34,9 +34,9 @@ from planner.trials import (
     draw_trial,
     run_trials,
     summary_cells,
-    threads_per_worker,
     torch_threads,
     worker_pool,
+    worker_threads,
 )
 from scenarios import InputError, load_scenario
 from scenarios.config import differences
@@ -150,7 +150,7 @@ def collect(cfg: ImproveConfig, model: str, r: int, out: Path, *, workers: int) 
                for i in range(cfg.heldout)}  # fmt: skip
     args = [(cfg, model, r, i, T) for i in range(cfg.trials_per_round)]
     bar = tqdm(total=len(args), unit="trial", desc=f"round {r}: collect")
-    threads = threads_per_worker(workers)
+    threads = worker_threads()
     if workers == 1:
         trials = []
         with torch_threads(threads):

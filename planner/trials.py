@@ -154,8 +154,8 @@ def summary_cells(s: dict[str, Any]) -> dict[str, str]:
     }
 
 
-def threads_per_worker(workers: int, threads: int | None = None) -> int:
-    """torch threads for each of ``workers`` processes: ``threads`` if given, else one.
+def worker_threads(threads: int | None = None) -> int:
+    """torch threads for each worker process: ``threads`` if given, else one.
 
     One by default, whatever the number of workers: workers on their own cores do not fight,
     and the records are the same for any ``--workers`` (a different thread count sums floats
@@ -215,7 +215,7 @@ def run_trials(
 
     if workers < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
-    threads = threads_per_worker(workers, threads)
+    threads = worker_threads(threads)
     load_scenario(cfg.scenario)  # fail early on an unknown scenario
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -445,9 +445,9 @@ def _cmd_plan_push(args: argparse.Namespace) -> int:
     if args.threads is None:
         result = run_push(cfg, on_step=show, viz=viz)
     else:
-        from planner.trials import threads_per_worker, torch_threads
+        from planner.trials import torch_threads, worker_threads
 
-        with torch_threads(threads_per_worker(1, args.threads)):
+        with torch_threads(worker_threads(args.threads)):
             result = run_push(cfg, on_step=show, viz=viz)
     if args.record:
         print(f"wrote {args.record} ({viz.frames} frames)")
