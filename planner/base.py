@@ -59,7 +59,10 @@ class PlannerConfig:
     grad_lr: float = 0.02
     """grad: Adam step size (m/s)"""
     grad_init_samples: int = 16
-    """grad: start from the best of the warm start and this many random sequences"""
+    """grad: candidate starts, this many in all: the warm start and random sequences about it"""
+    grad_starts: int = 4
+    """grad: Adam runs from the best this many of those at once (one batched rollout a
+    step), and the plan is the best sequence any of them reached"""
     trust_radius: float = 0.05
     """SQP: initial trust region on each action change (m/s)"""
     seed: int = 0
@@ -71,7 +74,7 @@ class PlannerConfig:
         return max(2 * self.elites, round(self.samples / self.shrink**iteration))
 
     def __post_init__(self) -> None:
-        for name in ("horizon", "samples", "iterations", "elites", "grad_steps"):
+        for name in ("horizon", "samples", "iterations", "elites", "grad_steps", "grad_starts"):
             if getattr(self, name) < 1:
                 raise InputError(f"{name} must be a positive integer, got {getattr(self, name)}")
         if self.elites > self.samples:

@@ -22,9 +22,11 @@ def _require_gradients(planner: Planner) -> None:
 
 
 class GradPlanner(Planner):
-    """Adam on the action sequence through the differentiable rollout, projected onto the
-    bounds after every step; starts from the best of the warm start and a few samples (plain
-    gradient steps from a poor start drift out of the data's distribution)."""
+    """Adam on action sequences through the differentiable rollout, projected onto the
+    bounds after every step; it starts from the best few of the warm start and random
+    samples (plain gradient steps from a poor start drift out of the data's distribution),
+    all of them at once: one batched rollout a step, each start's cost its own, so each start
+    follows the steps it would follow alone."""
 
     name = "grad"
 
@@ -37,18 +39,19 @@ class GradPlanner(Planner):
         with torch.inference_mode():
             cost, rollout = self.evaluate(state, starts)
         best.offer(starts, cost, rollout)
-        U = best.actions.clone().requires_grad_()
-        opt = torch.optim.Adam([U], lr=c.grad_lr)
+        order = torch.argsort(cost.nan_to_num(nan=math.inf))[: c.grad_starts]
+        U = starts[order].clone().requires_grad_()
+        opt = torch.optim.Adam([U], lr=c.grad_lr)  # elementwise: the starts stay independent
         for _ in range(c.grad_steps):
-            cost, rollout = self.evaluate(state, U[None])
-            best.offer(U.detach()[None], cost.detach(), rollout)
+            cost, rollout = self.evaluate(state, U)
+            best.offer(U.detach(), cost.detach(), rollout)
             opt.zero_grad()
             cost.sum().backward()
             opt.step()
             with torch.no_grad():
                 U.clamp_(-self.bound, self.bound)
         with torch.no_grad():
-            best.offer(U.detach()[None], *self.evaluate(state, U[None]))
+            best.offer(U.detach(), *self.evaluate(state, U))
         return best, c.grad_steps
 
 

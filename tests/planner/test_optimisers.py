@@ -237,6 +237,20 @@ def test_planners_report_the_rollout_of_the_plan_without_rolling_it_again(name):
     np.testing.assert_allclose(info.predicted_pusher, again.pusher_xy[0].numpy(), atol=1e-6)
 
 
+@pytest.mark.parametrize("goal", [(0.08, 0.03, 0.0), (0.02, -0.1, 0.0)])
+def test_grad_runs_its_starts_in_one_batch_each_as_it_would_alone(goal):
+    """Adam runs from the best few starts at once; each start's cost is its own, so the best
+    start takes the steps it takes alone and more starts never plan worse than one."""
+    cost = PushCost(SCENARIO, torch.tensor(goal), TOY_COST)
+    plans = {}
+    for starts in (1, 4):
+        dyn = _Counting(CarriedDisk(DT))
+        cfg = PlannerConfig(grad_steps=6, grad_init_samples=12, grad_starts=starts, seed=3)
+        _, plans[starts] = make_planner("grad", dyn, cost, SCENARIO, cfg).plan(toy_state())
+        assert dyn.batches == [12] + [starts] * (cfg.grad_steps + 1)
+    assert plans[4].cost <= plans[1].cost * (1 + 1e-6)
+
+
 def test_icem_shrinks_the_population_and_keeps_shifted_elites_for_the_next_replan():
     dyn = _Counting(CarriedDisk(DT))
     cost = PushCost(SCENARIO, torch.tensor((0.08, 0.03, 0.0)), TOY_COST)
