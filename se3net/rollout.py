@@ -24,12 +24,19 @@ import torch
 from torch import nn
 
 
+def pusher_path(actions: torch.Tensor, pusher_xy: torch.Tensor, dt: float) -> torch.Tensor:
+    """(B,N,2) the pusher's positions after each of N steps, integrated from the commanded
+    velocities (B,N,2) from its position (B or 1, 2) when the first starts: where the
+    planner expects it, the one integration of the commands."""
+    return pusher_xy.to(actions).reshape(-1, 1, 2) + dt * torch.cumsum(actions, dim=1)
+
+
 def pusher_controls(actions: torch.Tensor, pusher_xy: torch.Tensor, dt: float) -> torch.Tensor:
     """Controls (B,N,4) of N steps: the commanded velocities (B,N,2) and the pusher position
-    (B or 1, 2) at each step's start, integrated from them."""
+    (B or 1, 2) at each step's start (``pusher_path``)."""
     start = pusher_xy.to(actions).expand(len(actions), 2)[:, None]
-    moved = dt * torch.cumsum(actions[:, :-1], dim=1)
-    return torch.cat([actions, torch.cat([start, start + moved], 1)], -1)
+    after = pusher_path(actions[:, :-1], pusher_xy, dt)
+    return torch.cat([actions, torch.cat([start, after], 1)], -1)
 
 
 def rollout(
