@@ -28,7 +28,8 @@ import numpy as np
 import torch
 
 from scenarios import InputError, Scenario
-from se3net.rollout import rollout
+from se3net.data import subsample
+from se3net.rollout import pusher_path, rollout
 
 if TYPE_CHECKING:
     from sim import PushWorld
@@ -108,8 +109,8 @@ class Dynamics(Protocol):
 
 
 def integrate_pusher(state: PlanState, actions: torch.Tensor, dt: float) -> torch.Tensor:
-    """(K,H,2) pusher positions after each step, integrated from the commanded velocities."""
-    return state.pusher_xy.to(actions) + dt * torch.cumsum(actions, dim=1)
+    """(K,H,2) pusher positions after each step (``se3net.rollout.pusher_path``)."""
+    return pusher_path(actions, state.pusher_xy, dt)
 
 
 class NoMotionDynamics:
@@ -190,28 +191,34 @@ class LearnedDynamics:
         self.name, self.device = name, torch.device(device)
         self.dt = scenario.action.dt_control_s
         self.carry_masks = carry_masks
+        self.stride = model.cfg.stride  # the network sees every stride-th pixel
 
     def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
+        """Predictions for ``actions`` (K,H,2); ``clouds`` at the network's resolution."""
         K, H, _ = actions.shape
         caller = actions.device  # the network runs on self.device; results go back to the caller
         actions = actions.to(self.device)
         pusher = integrate_pusher(state, actions, self.dt)
+        points, valid, obj = (
+            subsample(x.to(self.device), self.stride)
+            for x in (state.points, state.valid, state.object_mask)
+        )
         predicted = rollout(
             self.model,
-            state.points.to(self.device)[None],
-            state.valid.to(self.device)[None],
+            points[None],
+            valid[None],
             actions,
             state.pusher_xy.to(self.device)[None],
             self.dt,
             carry_masks=self.carry_masks,
         )
-        sel = (state.object_mask & state.valid).flatten().nonzero()[:, 0].to(self.device)
-        T = state.T_world_cam.to(self.device, state.points.dtype)
+        sel = (obj & valid).flatten().nonzero()[:, 0]
+        T = state.T_world_cam.to(self.device, points.dtype)
 
         def world(points: torch.Tensor) -> torch.Tensor:  # camera-frame (...,N,3) to world
             return points @ T[:3, :3].T + T[:3, 3]
 
-        src = world(state.points.to(self.device).flatten(1)[:, sel].T)  # (N,3)
+        src = world(points.flatten(1)[:, sel].T)  # (N,3)
         pose0 = state.object_pose.to(self.device)
         poses = []
         for x in predicted:

@@ -209,12 +209,12 @@ def collect(cfg: ImproveConfig, model: str, r: int, out: Path, *, workers: int) 
 
 def finetune(cfg: ImproveConfig, init: str, data: list[str], out: Path) -> str:
     """Fine-tune ``init`` on the pooled ``data`` into ``out``; returns the best checkpoint."""
-    from se3net.checkpoint import read_checkpoint
+    from se3net.checkpoint import model_config
     from se3net.train import TrainConfig, train
 
-    net = read_checkpoint(init)["model"]
+    net = model_config(init)
     tcfg = TrainConfig(
-        data=tuple(data), out=str(out), variant=net["variant"], k=net["k"],
+        data=tuple(data), out=str(out), variant=net.variant, k=net.k, stride=net.stride,
         iters=cfg.finetune_iters, batch=cfg.batch, lr=cfg.lr, seed=cfg.seed,
         eval_every=min(cfg.eval_every, cfg.finetune_iters), rollout_steps=cfg.rollout_steps,
         init=init, later_fraction=cfg.visited_fraction,

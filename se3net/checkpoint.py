@@ -108,6 +108,11 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     return blob
 
 
+def model_config(path: str | Path) -> ModelConfig:
+    """The network configuration a checkpoint holds (say, to read its data at its stride)."""
+    return ModelConfig(**read_checkpoint(path)["model"])
+
+
 def load_checkpoint(
     path: str | Path,
     *,
@@ -146,6 +151,14 @@ def load_checkpoint(
             raise CheckpointError(
                 f"checkpoint {path} does not fit scenario {scenario.name!r}: "
                 + "; ".join(diffs[:4])
+            )
+        cam = scenario.camera
+        seen = (cfg.width * cfg.stride, cfg.height * cfg.stride)
+        if seen != (cam.width, cam.height):
+            raise CheckpointError(
+                f"checkpoint {path} is a {cfg.width}x{cfg.height} network at pixel stride "
+                f"{cfg.stride} (images of {seen[0]}x{seen[1]}), which does not fit the "
+                f"{cam.width}x{cam.height} camera of scenario {scenario.name!r}"
             )
     model = build_model(cfg)
     try:

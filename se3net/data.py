@@ -30,6 +30,22 @@ def evenly_spaced(n: int, limit: int) -> np.ndarray:
     return np.linspace(0, n - 1, min(n, limit)).round().astype(int)
 
 
+def subsample(x: torch.Tensor, stride: int) -> torch.Tensor:
+    """Every ``stride``-th pixel of an image-shaped tensor (..., H, W) in each direction: what
+    a planning-resolution model (``ModelConfig.stride``) sees of a camera image. Pixels keep
+    their identity, so associations and targets stay exact."""
+    return x if stride == 1 else x[..., ::stride, ::stride].contiguous()
+
+
+IMAGE_KEYS = ("points", "valid", "target", "target_valid", "part")
+"""the keys of a ``PushDataset`` batch that are images (the rest are per example)"""
+
+
+def subsample_batch(b: dict[str, Any], stride: int) -> dict[str, Any]:
+    """A batch with its images subsampled (``subsample``)."""
+    return {k: subsample(v, stride) if k in IMAGE_KEYS else v for k, v in b.items()}
+
+
 class PushDataset(Dataset):
     """Examples ``(cloud at t, controls t..t+h-1) -> targets at t+1..t+h``.
 
@@ -43,6 +59,8 @@ class PushDataset(Dataset):
         noise: depth and association noise (the scenario's ``NoiseConfig`` shape); None = off.
         seed: seed of the noise; item i's noise depends only on (seed, epoch, i).
         verify: check shard checksums.
+        stride: give every stride-th pixel of the camera's image in each direction
+            (``subsample``), for a planning-resolution model.
 
     Each item is a dict of tensors:
         ``points`` (3,H,W) float32, the input cloud in the camera frame (m);
@@ -65,6 +83,7 @@ class PushDataset(Dataset):
         noise: NoiseConfig | None = None,
         seed: int = 0,
         verify: bool = True,
+        stride: int = 1,
     ):
         roots = [root] if isinstance(root, str | Path) else list(root)
         if not roots:
@@ -85,7 +104,14 @@ class PushDataset(Dataset):
                 f"choose 1..{steps} or generate longer episodes (--steps-per-episode)"
             )
         self.scenario = scenario_of(self.manifest)
-        self.camera = DepthCamera(self.scenario.camera)
+        cam = self.scenario.camera
+        if stride < 1 or cam.height % stride or cam.width % stride:
+            raise DataError(
+                f"stride {stride} does not divide the {cam.width}x{cam.height} images of {root}; "
+                "choose a positive divisor of both"
+            )
+        self.stride = stride
+        self.camera = DepthCamera(cam)
         self._T_cam_world = self.camera.T_cam_world
         self.horizon, self.noise, self.seed, self.epoch = horizon, noise, seed, 0
         parts = [load_episodes(r, split, verify=verify) for r in roots]
@@ -165,7 +191,7 @@ class PushDataset(Dataset):
         u = np.concatenate(
             [self.a["actions"][e[:, None], steps], self.a["pusher_xy"][e[:, None], steps]], -1
         )
-        return {
+        full = {
             "points": points,
             "valid": valid,
             "u": torch.from_numpy(u).float(),
@@ -175,6 +201,7 @@ class PushDataset(Dataset):
             "episode": torch.from_numpy(self.episode_index[e]),
             "t": torch.from_numpy(t),
         }
+        return subsample_batch(full, self.stride)  # visibility judged at the camera's resolution
 
     def __getitem__(self, i: int) -> dict[str, Any]:
         item = {k: v[0] for k, v in self.batch([i]).items()}

@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from se3net.checkpoint import DEFAULT_MODEL, load_checkpoint
-from se3net.data import PushDataset, evenly_spaced
+from se3net.checkpoint import DEFAULT_MODEL, load_checkpoint, model_config
+from se3net.data import PushDataset, evenly_spaced, subsample_batch
 from se3net.metrics import FlowStats, MaskStats
 from se3net.rollout import rollout
 from sim.shards import portable_path
@@ -87,7 +87,8 @@ def evaluate_checkpoint(
     """Evaluate one checkpoint on the test split of ``data`` (``split="all"``: on every
     episode, for a dataset made to be held out; ``name``: its label, by default
     ``checkpoint_name``)."""
-    one = PushDataset(data, split=split, horizon=1)
+    stride = model_config(path).stride
+    one = PushDataset(data, split=split, horizon=1, stride=stride)
     model, blob = load_checkpoint(path, scenario=one.scenario, device=device)
     flow, masks = FlowStats(), MaskStats()
     idx = evenly_spaced(len(one), max_examples)
@@ -97,7 +98,7 @@ def evaluate_checkpoint(
         flow.add(pred.points, b["points"], b["target"][:, 0], b["target_valid"][:, 0])
         if pred.masks is not None:
             masks.add(pred.masks, b["part"], b["points"], b["target"][:, 0])
-    multi = PushDataset(data, split=split, horizon=MULTI_STEPS)
+    multi = PushDataset(data, split=split, horizon=MULTI_STEPS, stride=stride)
     dt = multi.scenario.action.dt_control_s
     steps = [FlowStats() for _ in range(MULTI_STEPS)]
     idx = evenly_spaced(len(multi), max_examples // 2)
@@ -186,11 +187,12 @@ def save_pictures(
     picks = scan[
         torch.argsort(obj_flow, descending=True)[:n].numpy()
     ].tolist()  # most object motion
-    b = ds.batch(picks)
+    full = ds.batch(picks)
     written = []
     plt = pyplot()
     for path, name in zip(paths, names or checkpoint_names(paths), strict=True):
         model, blob = load_checkpoint(path, scenario=ds.scenario)
+        b = subsample_batch(full, model.cfg.stride)
         pred = model(b["points"], b["u"][:, 0], b["valid"])
         fig, axes = plt.subplots(len(picks), 5, figsize=(17, 3.4 * len(picks)), squeeze=False)
         true_f = (b["target"][:, 0] - b["points"]).norm(dim=1) * 1e3

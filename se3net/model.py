@@ -53,6 +53,10 @@ class ModelConfig:
     """largest sharpening exponent"""
     pivot: str = "centroid"
     """rotate each mask about its centroid ("centroid") or the camera origin ("origin")"""
+    stride: int = 1
+    """the network sees every stride-th pixel of the camera's image in each direction
+    (``se3net.data.subsample``): height and width are the camera's divided by it, a
+    planning-resolution model (checkpoints from before it existed are stride 1)"""
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
@@ -60,8 +64,8 @@ class ModelConfig:
         div = 32 if self.large else 16
         if self.height % div or self.width % div:
             raise InputError(f"{self.variant} needs height and width divisible by {div}")
-        if self.k < 1 or self.control_dim < 1:
-            raise InputError("k and control_dim must be positive")
+        if self.k < 1 or self.control_dim < 1 or self.stride < 1:
+            raise InputError("k, control_dim and stride must be positive")
         if self.pivot not in ("centroid", "origin"):
             raise InputError(f"pivot must be 'centroid' or 'origin', got {self.pivot!r}")
 

@@ -134,7 +134,9 @@ def _bench_state(device: str = "cpu") -> tuple:
     return scenario, world, plan_state(obs, world), goal
 
 
-def replan_breakdown(replan_ms: float, *, repeats: int, device: str = "cpu") -> dict[str, float]:
+def replan_breakdown(
+    replan_ms: float, *, repeats: int, device: str = "cpu", model: str | None = None
+) -> dict[str, float]:
     """Where a default replan (cem with the shipped SE3-Net) spends its time, in ms per
     replan: each piece timed alone at the batch each iteration runs it at (the population
     shrinks), times the number of calls; "optimiser and rest" is ``replan_ms``, the default
@@ -143,17 +145,19 @@ def replan_breakdown(replan_ms: float, *, repeats: int, device: str = "cpu") -> 
 
     from planner import PlannerConfig, PushCost, make_dynamics
     from planner.dynamics import planar_fit
+    from se3net.data import subsample
     from se3net.model import transform_layer
     from se3net.se3 import params_to_transform
 
     scenario, world, state, goal = _bench_state(device)
     cfg = PlannerConfig()
     H = cfg.horizon
-    dyn = make_dynamics("se3net", scenario, device=device)
+    dyn = make_dynamics("se3net", scenario, model=model, device=device)
     net, bb = dyn.model, dyn.model.backbone
     cost = PushCost(scenario, goal)
-    x1, valid = state.points[None].to(device), state.valid[None].to(device)
-    sel = state.object_mask.flatten().nonzero()[:, 0]
+    x1, valid, obj = (subsample(x.to(device), dyn.stride)[None]
+                      for x in (state.points, state.valid, state.object_mask))  # fmt: skip
+    sel = obj.flatten().nonzero()[:, 0]
 
     def timed(fn) -> float:
         def run() -> None:
@@ -196,42 +200,50 @@ def replan_breakdown(replan_ms: float, *, repeats: int, device: str = "cpu") -> 
     return out
 
 
-def _side_by_side_replan(args: tuple[int, int]) -> float:
+def _side_by_side_replan(args: tuple[int, str | None]) -> float:
     """One of several processes timing default replans at once (1 torch thread each)."""
     import torch
 
     from planner import PlannerConfig, PushCost, make_dynamics, make_planner
 
-    repeats, _ = args
+    repeats, model = args
     torch.set_num_threads(1)
     scenario, world, state, goal = _bench_state()
-    planner = make_planner("cem", make_dynamics("se3net", scenario), PushCost(scenario, goal),
-                           scenario, PlannerConfig())  # fmt: skip
+    planner = make_planner("cem", make_dynamics("se3net", scenario, model=model),
+                           PushCost(scenario, goal), scenario, PlannerConfig())  # fmt: skip
     return 1e3 * median_seconds(lambda: planner.plan(state), repeats=repeats, warmup=1)
 
 
-def bench_planner(*, repeats: int, flow_model: str | None = None, device: str = "cpu") -> dict:
+def bench_planner(
+    *, repeats: int, model: str | None = None, flow_model: str | None = None, device: str = "cpu"
+) -> dict:
     """Median replan time of each optimiser with each backend at the default settings, on a
     single_box state with the pusher near the box; where the default replan's time goes; the
     default replan in two processes side by side; and the SE3-Net rollout's
-    candidate-steps/s (K = samples, H = horizon of the default config)."""
+    candidate-steps/s (K = samples, H = horizon of the default config). ``model``: the
+    SE3-Net checkpoint timed (default: the shipped one)."""
     import multiprocessing
 
     import torch
 
     from planner import PLANNERS, PlannerConfig, PushCost, make_dynamics, make_planner
+    from scenarios import InputError
+    from se3net.checkpoint import model_config
     from se3net.device import check_device
+    from sim.shards import portable_path
 
     check_device(device)  # before anything is timed
+    if model is not None and model_config(model).is_flow:
+        raise InputError(f"--model {model} is a flow net; time it with --flow-model")
     scenario, world, state, goal = _bench_state(device)
     cfg = PlannerConfig()
-    backends = {"se3net": None, "oracle": None, "no-motion": None}
+    backends = {"se3net": model, "oracle": None, "no-motion": None}
     if flow_model:
         backends["flow"] = flow_model
     times: dict[str, float | None] = {}
-    for backend, model in backends.items():
+    for backend, ckpt in backends.items():
         kind = "flow" if backend == "flow" else backend
-        dyn = make_dynamics(kind, scenario, model=model, device=device, world=world)
+        dyn = make_dynamics(kind, scenario, model=ckpt, device=device, world=world)
         for name in PLANNERS:
             key = f"{name}/{backend}"
             if name in ("grad", "sqp") and not dyn.differentiable:
@@ -240,7 +252,7 @@ def bench_planner(*, repeats: int, flow_model: str | None = None, device: str = 
             planner = make_planner(name, dyn, PushCost(scenario, goal), scenario, cfg)
             n = max(3, repeats // 4) if backend == "oracle" or name in ("grad", "sqp") else repeats
             times[key] = 1e3 * median_seconds(lambda p=planner: p.plan(state), repeats=n, warmup=2)
-    dyn = make_dynamics("se3net", scenario, device=device)
+    dyn = make_dynamics("se3net", scenario, model=model, device=device)
     U = torch.zeros(cfg.samples, cfg.horizon, 2)
 
     def rollout() -> None:
@@ -248,10 +260,11 @@ def bench_planner(*, repeats: int, flow_model: str | None = None, device: str = 
             dyn.rollout(state, U)
 
     steps_per_s = cfg.samples * cfg.horizon / median_seconds(rollout, repeats=repeats)
-    breakdown = replan_breakdown(times["cem/se3net"], repeats=repeats, device=device)
+    breakdown = replan_breakdown(times["cem/se3net"], repeats=repeats, device=device, model=model)
     with multiprocessing.get_context("fork").Pool(2) as pool:
-        pair = pool.map(_side_by_side_replan, [(repeats, i) for i in range(2)])
+        pair = pool.map(_side_by_side_replan, [(repeats, model)] * 2)
     return {
+        "se3net_model": portable_path(model) if model else "default",
         "replan_ms_median": times,
         "default": "cem/se3net",
         "default_replan_breakdown_ms": breakdown,

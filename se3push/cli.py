@@ -78,6 +78,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         lr=args.lr, seed=args.seed, device=args.device, k=args.k,
         eval_every=args.eval_every, keep_every=args.keep_every,
         rollout_steps=args.rollout_steps, init=args.init, later_fraction=args.later_fraction,
+        stride=args.stride,
     )  # fmt: skip
     try:
         figures = train(cfg, resume=args.resume)
@@ -210,7 +211,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from se3push.bench import run_bench
 
     options = (
-        {"flow_model": args.flow_model, "device": args.device} if args.what == "planner" else {}
+        {"model": args.model, "flow_model": args.flow_model, "device": args.device}
+        if args.what == "planner"
+        else {}
     )
     run_bench(args.what, repeats=args.repeats, json_path=args.json, **options)
     return 0
@@ -280,6 +283,13 @@ def _parser() -> argparse.ArgumentParser:
         type=float,
         default=0.0,
         help="share of each batch drawn from the second and later --data folders (0: uniform)",
+    )
+    s.add_argument(
+        "--stride",
+        type=int,
+        default=1,
+        help="the network sees every N-th pixel of the camera's image in each direction "
+        "(2: a 32x32 planning-resolution model of 64x64 data, about 4x faster to plan with)",
     )
     s.add_argument("--resume", action="store_true", help="continue the run in --out exactly")
     s.set_defaults(run=_cmd_train)
@@ -356,6 +366,11 @@ def _parser() -> argparse.ArgumentParser:
                    help="which benchmark")  # fmt: skip
     s.add_argument("--repeats", type=int, default=20, help="timed repeats per figure")
     s.add_argument("--json", default=None, metavar="PATH", help="also write the figures as JSON")
+    s.add_argument(
+        "--model",
+        default=None,
+        help="planner: the SE3-Net checkpoint to time (default: the shipped one)",
+    )
     s.add_argument("--flow-model", default=None, help="planner: also time a flow-net checkpoint")
     s.add_argument("--device", default="cpu", help="planner: device of the learned backends")
     s.set_defaults(run=_cmd_bench)

@@ -116,6 +116,26 @@ def test_gradients_through_the_se3net_rollout_match_finite_differences(tiny):
     torch.testing.assert_close(U.grad, numeric, rtol=1e-3, atol=1e-5)
 
 
+def test_a_stride_2_network_plans_from_full_resolution_observations(tiny):
+    """A planning-resolution network gets every other pixel of the observation, the object's
+    pixels with them: a network that moves every point by a known step predicts the object
+    moved by that step, and clouds at its own resolution."""
+    world = PushWorld(tiny)
+    state = plan_state(_approach(world, world.reset(2), 2), world)
+    model = build_model(ModelConfig(height=16, width=16, k=3, stride=2))
+    step = torch.tensor([0.01, -0.02, 0.0])  # world frame, each step
+    R_wc = state.T_world_cam[:3, :3]
+    with torch.no_grad():
+        model.se3_head[-1].bias.copy_(torch.cat([R_wc.T @ step, torch.zeros(3)]).repeat(3))
+    dyn = LearnedDynamics(model.eval(), tiny, name="se3net")
+    out = dyn.rollout(state, torch.zeros(2, 3, 2), clouds=True)
+    assert out.clouds.shape == (2, 3, 3, 16, 16)
+    h = torch.arange(1, 4, dtype=torch.float32)[:, None]
+    expected = state.object_pose[:2] + h * step[:2]
+    torch.testing.assert_close(out.object_poses[0, :, :2], expected, atol=1e-5, rtol=0)
+    torch.testing.assert_close(out.object_poses[..., 2], state.object_pose[2].expand(2, 3))
+
+
 def test_backend_errors(tiny):
     with pytest.raises(
         ValueError,

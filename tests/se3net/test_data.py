@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from scenarios import load_scenario
-from se3net.data import PushDataset
+from se3net.data import IMAGE_KEYS, PushDataset
 from sim import PushWorld
 from sim.dataset import DataConfig, generate
 from sim.datastore import split_of
@@ -181,6 +181,23 @@ def test_bad_reads_are_refused_with_what_to_do(root, tmp_path):
         PushDataset(copy)
     with pytest.raises(DataError, match=r"shard_00001\.npz cannot be read"):
         PushDataset(copy, verify=False)
+
+
+def test_a_strided_dataset_gives_every_other_pixel_with_its_full_resolution_targets(root):
+    """A planning-resolution model's data: pixels keep their identity, so each kept pixel's
+    targets and visibility are those judged at the camera's resolution."""
+    full = PushDataset(root, split="train", horizon=2)
+    half = PushDataset(root, split="train", horizon=2, stride=2)
+    idx = list(range(0, len(full), 7))
+    b, h = full.batch(idx), half.batch(idx)
+    for key in IMAGE_KEYS:
+        assert h[key].shape[-2:] == (16, 16)
+        assert torch.equal(h[key], b[key][..., ::2, ::2])
+    assert h["target_valid"].any() and (h["target"] != h["points"][:, None]).any()
+    for key in ("u", "episode", "t"):
+        assert torch.equal(h[key], b[key])
+    with pytest.raises(DataError, match="stride 3 does not divide the 32x32 images"):
+        PushDataset(root, stride=3)
 
 
 def test_pooled_datasets_must_share_scenario_and_episode_length(tiny_data, tmp_path):

@@ -256,6 +256,40 @@ def test_runs_have_no_horizon_setting_and_old_runs_with_the_inert_one_resume(tin
         train(cfg, resume=True, progress=False)
 
 
+def test_a_stride_2_run_is_a_half_resolution_network_refused_where_it_does_not_fit(
+    tiny_data, tmp_path
+):
+    tiny = load_scenario("tiny")
+    train(_cfg(tiny_data, tmp_path / "s2", iters=4, stride=2), progress=False)
+    path = tmp_path / "s2" / "best.pt"
+    model, blob = load_checkpoint(path, scenario=tiny)
+    assert (model.cfg.height, model.cfg.width, model.cfg.stride) == (16, 16, 2)
+    (result,) = evaluate([str(path)], str(tiny_data), str(tmp_path / "eval"), max_examples=16)
+    assert result.examples > 0 and 0 < result.flow_mse < float("inf")
+    with pytest.raises(CheckpointError, match="stride: --init has 2, this run has 1"):
+        train(_cfg(tiny_data, tmp_path / "s1", iters=4, init=str(path)), progress=False)
+    blob["model"]["stride"] = 1  # a stored stride that does not match the network's size
+    torch.save(blob, tmp_path / "odd.pt")
+    with pytest.raises(CheckpointError, match="16x16 network at pixel stride 1 .* 32x32 camera"):
+        load_checkpoint(tmp_path / "odd.pt", scenario=tiny)
+
+
+def test_checkpoints_from_before_the_stride_setting_are_full_resolution(tiny_data, tmp_path):
+    train(_cfg(tiny_data, tmp_path / "a", iters=4), progress=False)
+    blob = read_checkpoint(tmp_path / "a" / "best.pt")
+    del blob["model"]["stride"]
+    torch.save(blob, tmp_path / "old.pt")
+    model, _ = load_checkpoint(tmp_path / "old.pt", scenario=load_scenario("tiny"))
+    assert model.cfg.stride == 1
+    train(_cfg(tiny_data, tmp_path / "b", iters=4, init=str(tmp_path / "old.pt")), progress=False)
+    assert read_checkpoint(tmp_path / "b" / "best.pt")["model"]["stride"] == 1
+    last = tmp_path / "a" / "last.pt"  # and an old run resumes
+    blob = read_checkpoint(last)
+    del blob["train_state"]["config"]["stride"]
+    torch.save(blob, last)
+    train(_cfg(tiny_data, tmp_path / "a", iters=4), resume=True, progress=False)
+
+
 def test_checkpoints_of_like_named_runs_get_names_that_tell_them_apart(tmp_path):
     from se3net.evaluate import checkpoint_names
 
