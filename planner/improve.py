@@ -226,11 +226,11 @@ def finetune(cfg: ImproveConfig, init: str, data: list[str], out: Path) -> str:
 def run_improve(cfg: ImproveConfig, out: str | Path, *, workers: int = 1) -> dict[str, Any]:
     """Run (or continue) the rounds; returns and writes the per-round table."""
     from se3net.checkpoint import load_checkpoint
-    from sim.datastore import read_manifest
+    from sim.datastore import read_manifest, scenario_of
 
     scenario = load_scenario(cfg.scenario)  # refuse what cannot work before writing anything
     load_checkpoint(cfg.model, scenario=scenario)
-    if read_manifest(cfg.data)["identity"]["scenario"] != json.loads(json.dumps(asdict(scenario))):
+    if scenario_of(read_manifest(cfg.data)) != scenario:
         raise InputError(f"{cfg.data} was not generated with scenario {cfg.scenario!r}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -114,13 +114,37 @@ class MeshcatVisualiser:
         self.vis["/Cameras/default/rotated/<object>"].set_property("position", [0.75, 0.65, 0.25])
 
     def _object(self, path: str, spec, material) -> None:
+        """The object's prisms (``sim.shapes``): boxes, upright cylinders, convex meshes."""
         import meshcat.geometry as g
 
-        sx, sy, sz = spec.size_m
-        geom = g.Box([sx, sy, sz]) if spec.shape == "box" else g.Cylinder(sz, sx / 2)
-        self.vis[path]["shape"].set_object(geom, material)
-        if spec.shape != "box":  # meshcat's cylinders stand along y
-            self.vis[path]["shape"].set_transform(Y_UP_TO_Z_UP)
+        sz = spec.size_m[2]
+        solids = []  # (geometry, transform in the object's frame)
+        for piece in spec.pieces():
+            v, r = piece.array, piece.radius
+            ends = v if len(v) <= 2 else []
+            for end in ends:  # a disc, or the round ends of a stadium
+                T = _pose_matrix(float(end[0]), float(end[1]), 0.0, 0.0) @ Y_UP_TO_Z_UP
+                solids.append((g.Cylinder(sz, r), T))
+            if len(v) == 2:
+                d = v[1] - v[0]
+                mid, yaw = (v[0] + v[1]) / 2, math.atan2(d[1], d[0])
+                box = g.Box([float(np.linalg.norm(d)), 2 * r, sz])
+                solids.append((box, _pose_matrix(float(mid[0]), float(mid[1]), yaw, 0.0)))
+            elif len(v) >= 3:
+                n = len(v)
+                verts = np.array([(x, y, z) for z in (-sz / 2, sz / 2) for x, y in v])
+                sides = [
+                    f
+                    for i in range(n)
+                    for f in ((i, (i + 1) % n, n + i), ((i + 1) % n, n + (i + 1) % n, n + i))
+                ]
+                caps = [(0, i + 1, i) for i in range(1, n - 1)]
+                caps += [(n, n + i, n + i + 1) for i in range(1, n - 1)]  # fmt: skip
+                mesh = g.TriangularMeshGeometry(verts, np.array(sides + caps))
+                solids.append((mesh, np.eye(4)))
+        for k, (geom, T) in enumerate(solids):
+            self.vis[path]["shape"][str(k)].set_object(geom, material)
+            self.vis[path]["shape"][str(k)].set_transform(T)
 
     def _T(self, pose: np.ndarray, spec) -> np.ndarray:
         return _pose_matrix(float(pose[0]), float(pose[1]), float(pose[2]), spec.size_m[2] / 2)

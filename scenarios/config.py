@@ -6,22 +6,26 @@ checks a TOML file against them. Units are in the field names (``_m``, ``_deg``,
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import dataclasses
+import json
+from dataclasses import MISSING, dataclass, field
 from typing import Any
 
 Pair = tuple[float, float]
 
 
-def spec(doc: str, **limits: Any) -> Any:
+def spec(doc: str, *, default: Any = MISSING, **limits: Any) -> Any:
     """A dataclass field with its doc and limits.
 
     Args:
         doc: one line saying what the field means.
+        default: the value a scenario file (or a stored scenario from before the field
+            existed) that leaves it out gets; without one the field is required.
         limits: any of ``ge``, ``gt``, ``le`` (bounds on every number in the value),
             ``ordered`` (a ``[lo, hi]`` pair or list of pairs must have lo <= hi),
             ``choices`` (allowed strings), ``min_len``.
     """
-    return field(metadata={"doc": doc, **limits})
+    return field(default=default, metadata={"doc": doc, **limits})
 
 
 @dataclass(frozen=True)
@@ -62,7 +66,11 @@ class CameraConfig:
 @dataclass(frozen=True)
 class ObjectsConfig:
     count: tuple[int, int] = spec("[min, max] number of objects", ge=1, le=3, ordered=True)
-    shapes: tuple[str, ...] = spec("shapes to draw from", choices=("box", "cylinder"), min_len=1)
+    shapes: tuple[str, ...] = spec(
+        "shapes to draw from (sim.shapes)",
+        choices=("box", "cylinder", "capsule", "hull", "L", "T"),
+        min_len=1,
+    )
     box_size_m: tuple[Pair, Pair, Pair] = spec(
         "[lo, hi] full extents of a box along x, y, z", gt=0, ordered=True
     )
@@ -74,6 +82,22 @@ class ObjectsConfig:
         "[x_min, x_max, y_min, y_max] where object centres are placed at reset"
     )
     min_gap_m: float = spec("clearance between objects, and to the pusher, at reset", ge=0)
+    capsule_size_m: tuple[Pair, Pair, Pair] = spec(
+        "[lo, hi] length, width and height of a capsule (a stadium puck; width <= length)",
+        gt=0, ordered=True, default=((0.08, 0.08), (0.04, 0.04), (0.05, 0.05)),
+    )  # fmt: skip
+    hull_size_m: tuple[Pair, Pair, Pair] = spec(
+        "[lo, hi] x, y extents of the rectangle a hull's points are drawn in, and its height",
+        gt=0, ordered=True, default=((0.07, 0.07), (0.06, 0.06), (0.05, 0.05)),
+    )  # fmt: skip
+    bar_size_m: tuple[Pair, Pair, Pair] = spec(
+        "[lo, hi] full extents of an L or T shape along x, y, z",
+        gt=0, ordered=True, default=((0.08, 0.08), (0.08, 0.08), (0.05, 0.05)),
+    )  # fmt: skip
+    bar_width_m: tuple[float, float] = spec(
+        "[lo, hi] width of the two bars of an L or T shape (at most its x and y extents)",
+        gt=0, ordered=True, default=(0.03, 0.03),
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -112,6 +136,26 @@ class Scenario:
     action: ActionConfig = spec("action bounds and timing")
     noise: NoiseConfig = spec("sensor noise applied when data is read")
     goals: GoalsConfig = spec("goal distribution for trials")
+
+
+def scenario_dict(scenario: Scenario) -> dict[str, Any]:
+    """The scenario as JSON types, as manifests and checkpoints store it. Fields with a
+    default that hold it are left out, so a scenario that does not use a setting added later
+    is stored as it was before the setting existed (same dataset identity, same hash);
+    ``scenario_from_dict`` fills them in again."""
+
+    def strip(obj: Any) -> Any:
+        if not dataclasses.is_dataclass(obj):
+            return obj
+        out = {}
+        for f in dataclasses.fields(obj):
+            value = getattr(obj, f.name)
+            if f.default is not MISSING and value == f.default:
+                continue
+            out[f.name] = strip(value)
+        return out
+
+    return json.loads(json.dumps(strip(scenario)))
 
 
 def differences(

@@ -91,6 +91,9 @@ def _build(cls: type, table: Any, where: str, prefix: str) -> Any:
     for name, f in fields.items():
         dotted = prefix + name
         if name not in table:
+            if f.default is not dataclasses.MISSING:
+                values[name] = f.default
+                continue
             raise ScenarioError(f"{where}: field '{dotted}' is missing ({f.metadata['doc']})")
         hint = hints[name]
         if dataclasses.is_dataclass(hint):

@@ -20,7 +20,7 @@ from typing import Any
 import torch
 
 from scenarios import InputError, Scenario
-from scenarios.config import differences
+from scenarios.config import differences, scenario_dict
 from se3net.device import check_device
 from se3net.model import ModelConfig, build_model
 from sim.dataset import CONTROL_LAYOUT, code_version
@@ -74,7 +74,7 @@ def save_checkpoint(
         "code_version": code_version(),
         "model": model.cfg.to_dict(),
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-        "scenario": json.loads(json.dumps(dataclasses.asdict(scenario))),
+        "scenario": scenario_dict(scenario),
         "fingerprint": scenario_fingerprint(scenario),
         "control_layout": list(CONTROL_LAYOUT),
         "data_hash": data_hash,

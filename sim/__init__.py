@@ -1,8 +1,9 @@
 """The MuJoCo push world: scenario -> MJCF, arm controller, ray-cast depth camera."""
 
 from sim.camera import DepthCamera, associated_targets, look_at
-from sim.mjcf import ObjectSpec, build_mjcf
+from sim.mjcf import build_mjcf
 from sim.planar import pose_errors, wrap_angle
+from sim.shapes import SHAPES, ObjectSpec
 from sim.world import ActionError, EpisodeEnded, Observation, PushWorld, object_part
 
 __all__ = [
@@ -10,6 +11,7 @@ __all__ = [
     "DepthCamera",
     "EpisodeEnded",
     "ObjectSpec",
+    "SHAPES",
     "Observation",
     "PushWorld",
     "associated_targets",

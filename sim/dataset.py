@@ -14,7 +14,6 @@ finished shards.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -26,17 +25,16 @@ from typing import Any
 import numpy as np
 
 from scenarios import InputError, Scenario, load_scenario
-from scenarios.config import differences
+from scenarios.config import differences, scenario_dict
 from sim.camera import associated_targets
 from sim.explore import MODES, ExplorationConfig, ExplorationPolicy, describe_exploration
-from sim.mjcf import ObjectSpec
+from sim.shapes import DETAILED_SHAPES, MAX_OUTLINE, SHAPES, ObjectSpec
 from sim.shards import DataError, atomic_write_json, sha256, write_shard
 from sim.world import MAX_PARTS, PushWorld
 
 DATA_FORMAT = 1
 MANIFEST = "manifest.json"
 CONTROL_LAYOUT = ("vx_m_s", "vy_m_s", "pusher_x_m", "pusher_y_m")
-SHAPES = ("box", "cylinder")
 MOVED_M = 1e-3
 """an example shows object motion if some visible object point moves more than this"""
 NONZERO_FLOW_M = 1e-4
@@ -83,7 +81,7 @@ def identity(cfg: DataConfig, scenario: Scenario) -> dict[str, Any]:
     holds one identity."""
     ident = {
         "format": DATA_FORMAT,
-        "scenario": dataclasses.asdict(scenario),
+        "scenario": scenario_dict(scenario),
         "seed": cfg.seed,
         "episodes": cfg.episodes,
         "steps_per_episode": cfg.steps_per_episode,
@@ -104,15 +102,24 @@ STEP_MODES = (*MODES, PLANNER_MODE)
 def episode_objects(arrays: dict[str, np.ndarray], e: int) -> list[ObjectSpec]:
     """The objects of episode ``e`` of loaded dataset arrays, as :class:`EpisodeRecorder`
     stored them."""
-    return [
-        ObjectSpec(
-            shape=SHAPES[int(arrays["object_shape"][e, i])],
-            size_m=tuple(float(x) for x in arrays["object_size"][e, i]),
-            mass_kg=float(arrays["object_mass"][e, i]),
-            friction=float(arrays["object_friction"][e, i]),
+    objects = []
+    for i in range(int(arrays["n_objects"][e])):
+        detail = {}
+        if "object_arm" in arrays:  # data of scenarios with shapes beyond boxes and cylinders
+            outline = arrays["object_outline"][e, i]
+            outline = outline[~np.isnan(outline[:, 0])]
+            detail = {"arm_m": float(arrays["object_arm"][e, i]),
+                      "outline": tuple(tuple(float(c) for c in v) for v in outline)}  # fmt: skip
+        objects.append(
+            ObjectSpec(
+                shape=SHAPES[int(arrays["object_shape"][e, i])],
+                size_m=tuple(float(x) for x in arrays["object_size"][e, i]),
+                mass_kg=float(arrays["object_mass"][e, i]),
+                friction=float(arrays["object_friction"][e, i]),
+                **detail,
+            )
         )
-        for i in range(int(arrays["n_objects"][e]))
-    ]
+    return objects
 
 
 class EpisodeRecorder:
@@ -145,6 +152,13 @@ class EpisodeRecorder:
                 [o.friction for o in world.objects] + [0] * (3 - n_obj), float
             ),
         }
+        if set(world.scenario.objects.shapes) & set(DETAILED_SHAPES):  # their bars and outlines
+            pad = MAX_PARTS - 2 - n_obj
+            self.out["object_arm"] = np.array([o.arm_m for o in world.objects] + [0] * pad, float)
+            none = np.full((MAX_OUTLINE, 2), np.nan)
+            self.out["object_outline"] = np.stack(
+                [o.outline_array() for o in world.objects] + [none] * pad
+            )
         self._frame(0, obs)
 
     def _frame(self, t: int, o) -> None:

@@ -21,8 +21,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from scenarios import Scenario
-from sim.mjcf import ObjectSpec
 from sim.planar import wrap_angle
+from sim.shapes import ObjectSpec
 from sim.world import Observation
 
 MODES = ("aimed", "glance", "free", "rest", "approach")
@@ -119,14 +119,12 @@ class ExplorationPolicy:
         )
 
     def _extent_along(self, i: int, u: np.ndarray, obs: Observation) -> float:
-        """Half-width of object i's footprint along the world direction ``u``."""
-        sx, sy, _ = self.objects[i].size_m
-        if self.objects[i].shape != "box":
-            return sx / 2
+        """How far object i's footprint reaches from its centre along the world direction
+        ``u``."""
         yaw = obs.object_poses[i, 2]
         ux = u[0] * math.cos(yaw) + u[1] * math.sin(yaw)  # u in the object's frame
         uy = -u[0] * math.sin(yaw) + u[1] * math.cos(yaw)
-        return abs(ux) * sx / 2 + abs(uy) * sy / 2
+        return self.objects[i].support_m(np.array([ux, uy]))
 
     def start_position(self, obs: Observation) -> np.ndarray:
         """Where to put the pusher at the start of an episode: at the pre-push point of a
@@ -188,7 +186,8 @@ class ExplorationPolicy:
                 offset = self.rng.normal(0.0, 0.15) * half
             else:
                 offset = self.rng.choice([-1.0, 1.0]) * self.rng.uniform(0.5, 1.2) * half
-            back = self._extent_along(i, u, obs) + self.s.arm.pusher_radius_m + self.cfg.clearance_m
+            clear = self.s.arm.pusher_radius_m + self.cfg.clearance_m
+            back = self._extent_along(i, -u, obs) + clear  # behind the object's far side
             start = c - u * back + np.array([-u[1], u[0]]) * offset
             end = c + u * speed * self.s.action.dt_control_s * n_push
             if self._inside_table(end) and self._clear(start, obs, skip=i):

@@ -20,7 +20,8 @@ import numpy as np
 from scenarios import InputError, Scenario
 from sim.camera import DepthCamera, associated_targets, invert, transform_by_part
 from sim.controller import PusherIK
-from sim.mjcf import ARM_JOINTS, PUSHER_BODY, PUSHER_SITE, ObjectSpec, build_mjcf, object_body
+from sim.mjcf import ARM_JOINTS, PUSHER_BODY, PUSHER_SITE, build_mjcf, object_body
+from sim.shapes import HULL_POINTS, ObjectSpec, hull_outline
 
 PART_NONE, PART_STATIC, PART_PUSHER = -1, 0, 1
 FIRST_OBJECT_PART = 2
@@ -144,16 +145,31 @@ class PushWorld:
     def _draw_object(self, rng: np.random.Generator) -> ObjectSpec:
         o = self.scenario.objects
         shape = o.shapes[int(rng.integers(len(o.shapes)))]
-        if shape == "box":
-            size = tuple(float(rng.uniform(lo, hi)) for lo, hi in o.box_size_m)
-        else:
+        detail = {}
+        if shape == "cylinder":
             d = 2 * float(rng.uniform(*o.cylinder_radius_m))
             size = (d, d, float(rng.uniform(*o.cylinder_height_m)))
+        else:
+            ranges = {"box": o.box_size_m, "capsule": o.capsule_size_m, "hull": o.hull_size_m}
+            size = tuple(float(rng.uniform(lo, hi)) for lo, hi in ranges.get(shape, o.bar_size_m))
+        if shape == "capsule":  # its width is at most its length
+            size = (size[0], min(size[0], size[1]), size[2])
+        elif shape == "hull":
+            corner = np.array(size[:2]) / 2
+            points = rng.uniform(-corner, corner, size=(HULL_POINTS, 2))
+            outline = hull_outline(points)
+            lo, hi = outline.min(0), outline.max(0)
+            outline = outline - (lo + hi) / 2  # the origin at the bounding box's centre
+            size = (*(float(x) for x in hi - lo), size[2])
+            detail["outline"] = tuple((float(x), float(y)) for x, y in outline)
+        elif shape in ("L", "T"):
+            detail["arm_m"] = min(float(rng.uniform(*o.bar_width_m)), *size[:2])
         return ObjectSpec(
             shape=shape,
             size_m=size,
             mass_kg=float(rng.uniform(*o.mass_kg)),
             friction=float(rng.uniform(*o.friction)),
+            **detail,
         )
 
     def _place_objects(self, rng: np.random.Generator) -> list[tuple[float, float, float]]:
