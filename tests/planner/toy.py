@@ -13,7 +13,7 @@ import torch
 
 from planner.cost import CostConfig, PushCost
 from planner.dynamics import PlanState, Rollout, integrate_pusher
-from sim.mjcf import ObjectSpec
+from sim.shapes import ObjectSpec
 
 TOY_COST = CostConfig(w_shaping=0.0)
 DISK = ObjectSpec("cylinder", (0.06, 0.06, 0.05), 0.2, 0.5)
