@@ -92,6 +92,18 @@ class PlannerConfig:
             raise InputError(f"warm_std must be positive or None, got {self.warm_std}")
 
 
+ONE_PLANNER_SETTINGS = {
+    "temperature": "mppi",
+    "grad_steps": "grad",
+    "grad_lr": "grad",
+    "grad_init_samples": "grad",
+    "grad_starts": "grad",
+    "trust_radius": "sqp",
+}
+"""PlannerConfig fields that one optimiser alone reads: runs of the others do not depend on
+them (so a trial folder of cem trials is not another set for a new grad setting)"""
+
+
 @dataclass
 class PlanInfo:
     """What a replan found."""

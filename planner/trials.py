@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.base import PlannerConfig
+from planner.base import ONE_PLANNER_SETTINGS, PlannerConfig
 from planner.cost import CostConfig
 from planner.diagnostics import pooled
 from planner.loop import PushConfig, run_push
@@ -194,6 +194,32 @@ def worker_pool(workers: int, threads: int) -> ProcessPoolExecutor:
     )
 
 
+def _weights_of(model: str) -> str | None:
+    """Which weights a trial folder's model names (a shipped name such as ``default`` may
+    change between versions): the checkpoints' SHA-256, joined like the model; None for the
+    simulator and no-motion backends."""
+    if model in ("oracle", "no-motion"):
+        return None
+    from planner.dynamics import ENSEMBLE_SEP
+    from se3net.checkpoint import model_sha256, resolve_model
+
+    parts = [model] if resolve_model(model).exists() else model.split(ENSEMBLE_SEP)
+    return ENSEMBLE_SEP.join(model_sha256(p) for p in parts)
+
+
+def _compared(meta: dict) -> dict:
+    """What makes two trial folders the same set: the configuration but ``n`` (the set is a
+    prefix: any n extends or summarises it) and the planner settings only other optimisers
+    read."""
+    out = {k: v for k, v in meta.items() if k != "n"}
+    if isinstance(meta.get("planning"), dict):
+        mine = meta["planner"]
+        out["planning"] = {
+            k: v for k, v in meta["planning"].items() if ONE_PLANNER_SETTINGS.get(k, mine) == mine
+        }
+    return out
+
+
 def run_trials(
     cfg: TrialsConfig,
     out: str | Path,
@@ -220,11 +246,12 @@ def run_trials(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta_path, log = out / "config.json", out / "trials.jsonl"
-    meta = {**asdict(cfg), "trial_set": TRIAL_SET}
+    meta = {**asdict(cfg), "trial_set": TRIAL_SET, "model_sha256": _weights_of(cfg.model)}
     old_meta = json.loads(meta_path.read_text()) if meta_path.exists() else None
     if old_meta is not None:
-        old, new = dict(old_meta), dict(meta)
-        old.pop("n", None), new.pop("n")  # the set is a prefix: any n extends or summarises it
+        old, new = _compared(old_meta), _compared(meta)
+        if "model_sha256" not in old:  # folders from before weights were recorded
+            new.pop("model_sha256")
         if old != new:
             raise InputError(
                 f"{out} holds other trials ({'; '.join(differences(old, new))}); "

@@ -24,7 +24,7 @@ from scenarios.config import differences, scenario_dict
 from se3net.device import check_device
 from se3net.model import ModelConfig, build_model
 from sim.dataset import CONTROL_LAYOUT, code_version
-from sim.shards import atomic_write_bytes
+from sim.shards import atomic_write_bytes, sha256
 
 CHECKPOINT_FORMAT = 1
 DEFAULT_MODEL = Path(__file__).parent / "weights" / "default.pt"
@@ -88,10 +88,28 @@ def save_checkpoint(
     atomic_write_bytes(Path(path), buf.getvalue())
 
 
+def resolve_model(path: str | Path) -> Path:
+    """The file of a checkpoint named by a path or by the name of a shipped model
+    (``"default"``; any ``NAME`` with a ``se3net/weights/NAME.pt``)."""
+    name = str(path)
+    shipped = DEFAULT_MODEL.parent / f"{name}.pt"
+    if "/" not in name and not name.endswith(".pt") and shipped.is_file():
+        return shipped
+    return Path(path)
+
+
+def model_sha256(path: str | Path) -> str:
+    """The SHA-256 of a checkpoint's file (``resolve_model``): which weights a result used."""
+    file = resolve_model(path)
+    if not file.is_file():
+        raise CheckpointError(f"checkpoint {file} does not exist; train one with `se3push train`")
+    return sha256(file)
+
+
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """The raw contents of a checkpoint file (``"default"``: the shipped model), checked to be
-    readable and of this format."""
-    path = DEFAULT_MODEL if str(path) == "default" else Path(path)
+    """The raw contents of a checkpoint file (a shipped model by name: ``resolve_model``),
+    checked to be readable and of this format."""
+    path = resolve_model(path)
     if not path.is_file():
         raise CheckpointError(f"checkpoint {path} does not exist; train one with `se3push train`")
     try:

@@ -144,6 +144,16 @@ def test_a_folder_of_other_planning_settings_is_refused(tmp_path):
         run_trials(replace(cfg, cost=CostConfig(w_spread=0.0)), tmp_path, progress=False)
     with pytest.raises(InputError, match="planning.horizon"):
         run_trials(replace(cfg, planning=PlannerConfig(horizon=2)), tmp_path, progress=False)
+    # a setting only another optimiser reads does not make other trials, even a setting the
+    # folder's code did not have yet
+    meta = json.loads((tmp_path / "config.json").read_text())
+    del meta["planning"]["grad_starts"]
+    (tmp_path / "config.json").write_text(json.dumps(meta))
+    grad = PlannerConfig(grad_starts=2, trust_radius=0.1, temperature=0.1)
+    assert run_trials(replace(cfg, n=3, planning=grad), tmp_path, progress=False)["trials"] == 3
+    run_trials(replace(cfg, planner="grad"), tmp_path / "g", progress=False)
+    with pytest.raises(InputError, match="planning.grad_starts: folder has 4, this run asks for 2"):
+        run_trials(replace(cfg, planner="grad", planning=grad), tmp_path / "g", progress=False)
     with pytest.raises(InputError, match="--spread-weight"):
         CostConfig(w_spread=float("nan"))
     with pytest.raises(InputError, match="pos_scale_m must be positive"):
@@ -176,3 +186,23 @@ def test_each_trial_worker_runs_with_the_threads_asked_for(workers, threads, exp
     assert torch.get_num_threads() == before  # the caller's setting is restored
     with pytest.raises(InputError, match="--threads must be at least 1"):
         run_trials(cfg, tmp_path / "x", workers=1, threads=0, progress=False)
+
+
+def test_a_folder_is_refused_when_its_model_names_other_weights_now(tiny_data, tmp_path):
+    """A model name (a path, or a shipped name such as ``default``) may come to mean other
+    weights; the folder records the weights' SHA-256 and refuses to mix them."""
+    from se3net.train import TrainConfig, train
+
+    for seed in (0, 1):
+        run = TrainConfig(data=str(tiny_data), out=str(tmp_path / f"m{seed}"), iters=2, batch=4,
+                          eval_every=2, val_examples=4, k=3, seed=seed)  # fmt: skip
+        train(run, progress=False)
+    model = tmp_path / "model.pt"
+    model.write_bytes((tmp_path / "m0" / "best.pt").read_bytes())
+    cfg = TrialsConfig("tiny", n=1, model=str(model), max_steps=1)
+    run_trials(cfg, tmp_path / "t", progress=False)
+    meta = json.loads((tmp_path / "t" / "config.json").read_text())
+    assert len(meta["model_sha256"]) == 64
+    model.write_bytes((tmp_path / "m1" / "best.pt").read_bytes())
+    with pytest.raises(InputError, match="model_sha256: folder has"):
+        run_trials(replace(cfg, n=2), tmp_path / "t", progress=False)

@@ -38,7 +38,8 @@ def test_recorded_html_holds_one_animation_frame_per_step(tmp_path):
     assert html.lstrip().startswith("<!DOCTYPE html>") and viz.frames == result.steps == 3
     cmds = _commands(html)
     objects = {c["path"] for c in cmds if c["type"] == "set_object"}
-    assert {"/meshcat/table", "/meshcat/pusher", "/meshcat/cloud", "/meshcat/goal/shape/0"} <= objects
+    expected = {"/meshcat/table", "/meshcat/pusher", "/meshcat/cloud", "/meshcat/goal/shape/0"}
+    assert expected <= objects
     (anim,) = [c for c in cmds if c["type"] == "set_animation"]
     tracks = {a["path"]: a["clip"]["tracks"] for a in anim["animations"]}
     assert {
