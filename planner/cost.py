@@ -5,7 +5,8 @@ Per step h of a rollout: the object's position error and symmetry-aware yaw erro
 (the terminal step weighted more than the running steps), a shaping term that draws the pusher
 to the object's far side from the goal while the object is predicted not to move, penalties
 on action size and change, a penalty for the pusher leaving the workspace, and, with an
-ensemble of models, a penalty on their disagreement (the planner keeps to what they agree on).
+ensemble of models, a penalty on their disagreement (the planner keeps to what they agree on),
+and, among other objects, a penalty on their predicted displacement (it keeps them in place).
 
 The shaping target goes round the object: a pusher on the goal's side of it is drawn to a
 waypoint on a circle about the object, a step round toward the far side, not straight at the
@@ -62,11 +63,16 @@ class CostConfig:
     w_spread: float = 1.0
     """weight of an ensemble's disagreement per step (scaled like the position error); only
     ensembles report one"""
+    w_disturb: float = 1.0
+    """weight of how far the other objects are predicted to be moved by the last step
+    (scaled like the position error): the planner pushes one object among others and keeps
+    the others where they are"""
 
     def __post_init__(self) -> None:
         for name, value in vars(self).items():
             if not (math.isfinite(value) and value >= 0):
-                what = "--spread-weight" if name == "w_spread" else f"cost setting {name}"
+                flags = {"w_spread": "--spread-weight", "w_disturb": "--disturb-weight"}
+                what = flags.get(name, f"cost setting {name}")
                 raise InputError(f"{what} must be a finite number >= 0, got {value}")
         for name in ("pos_scale_m", "yaw_scale_rad", "shaping_scale_m", "moving_m"):
             if not getattr(self, name) > 0:  # the scales divide
@@ -166,6 +172,9 @@ class PushCost:
         res.append(math.sqrt(c.w_workspace) * out.flatten(1))
         if rollout.spread is not None and c.w_spread > 0:
             res.append(math.sqrt(c.w_spread) * rollout.spread / c.pos_scale_m)
+        if rollout.other_poses is not None and c.w_disturb > 0 and state.n_others:
+            moved = rollout.other_poses[:, -1, :, :2] - state.other_poses[:, :2].to(actions)
+            res.append(math.sqrt(c.w_disturb) * moved.flatten(1) / c.pos_scale_m)
         return torch.cat(res, 1)
 
     def cost(

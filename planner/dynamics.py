@@ -59,6 +59,14 @@ class PlanState:
     """radius of the circle that holds the pushed object's footprint (the pre-push point)"""
     yaw_period_rad: float | None
     """the turn after which the pushed object looks the same (None: any turn, a cylinder)"""
+    other_poses: torch.Tensor | None = None
+    """(M,3) the poses of the other objects on the table (None or M = 0: there are none)"""
+    other_masks: torch.Tensor | None = None
+    """(M,H,W) bool, their pixels"""
+
+    @property
+    def n_others(self) -> int:
+        return 0 if self.other_poses is None else len(self.other_poses)
 
 
 def planar_fit(
@@ -95,6 +103,8 @@ class Rollout:
     spread: torch.Tensor | None = None
     """(K,H) how much an ensemble's members disagree on the object's pose after each step (m:
     the RMS over members of the deviation of the object's footprint from the mean pose)"""
+    other_poses: torch.Tensor | None = None
+    """(K,H,M,3) the other objects' predicted poses after each step (None: no others)"""
 
 
 class Dynamics(Protocol):
@@ -124,7 +134,10 @@ class NoMotionDynamics:
     def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
         K, H, _ = actions.shape
         poses = state.object_pose.to(actions).expand(K, H, 3) + 0.0 * actions.sum()
-        return Rollout(poses, integrate_pusher(state, actions, self.dt))
+        others = None
+        if state.n_others:
+            others = state.other_poses.to(actions).expand(K, H, -1, 3) + 0.0 * actions.sum()
+        return Rollout(poses, integrate_pusher(state, actions, self.dt), other_poses=others)
 
 
 class OracleDynamics:
@@ -149,17 +162,24 @@ class OracleDynamics:
         bound = self.world.scenario.action.max_speed_m_s  # float32 candidates may round past it
         a = np.clip(actions.detach().cpu().double().numpy(), -bound, bound)
         K, H, _ = a.shape
-        poses = np.empty((K, H, 3))
+        n = len(self.world.objects)
+        every = np.empty((K, H, n, 3))  # every object's pose
         pusher = np.empty((K, H, 2))
         for k in range(K):
             self._clone.restore(start)
             for h in range(H):
-                if self._clone.ended:  # the object fell off: it stays where it was last seen
-                    poses[k, h], pusher[k, h] = poses[k, h - 1], pusher[k, h - 1]
+                if self._clone.ended:  # an object fell off: they stay where they were last seen
+                    every[k, h], pusher[k, h] = every[k, h - 1], pusher[k, h - 1]
                     continue
-                poses[k, h] = self._clone.advance(a[k, h])[self.object_index]
+                every[k, h] = self._clone.advance(a[k, h])
                 pusher[k, h] = self._clone.pusher_xy()
-        return Rollout(torch.from_numpy(poses).to(actions), torch.from_numpy(pusher).to(actions))
+        i = self.object_index
+        others = np.delete(every, i, axis=2) if n > 1 else None
+        return Rollout(
+            torch.from_numpy(every[:, :, i]).to(actions),
+            torch.from_numpy(pusher).to(actions),
+            other_poses=None if others is None else torch.from_numpy(others).to(actions),
+        )
 
 
 class LearnedDynamics:
@@ -212,27 +232,39 @@ class LearnedDynamics:
             self.dt,
             carry_masks=self.carry_masks,
         )
-        sel = (obj & valid).flatten().nonzero()[:, 0]
         T = state.T_world_cam.to(self.device, points.dtype)
 
-        def world(points: torch.Tensor) -> torch.Tensor:  # camera-frame (...,N,3) to world
-            return points @ T[:3, :3].T + T[:3, 3]
-
-        src = world(points.flatten(1)[:, sel].T)  # (N,3)
-        pose0 = state.object_pose.to(self.device)
-        poses = []
-        for x in predicted:
-            if len(sel) >= 3:
-                dst = world(x.flatten(2)[:, :, sel].transpose(1, 2))  # (K,N,3)
-                yaw, xy = planar_fit(src[:, :2], dst[..., :2], pose0[:2])
+        def track(mask: torch.Tensor, pose0: torch.Tensor) -> torch.Tensor:
+            """(K,H,3) an object's poses: its predicted points fitted to its observed ones."""
+            sel = (mask & valid).flatten().nonzero()[:, 0]
+            if len(sel) < 3:  # out of sight: nothing to predict from
+                return pose0.expand(K, H, 3) + 0.0 * torch.stack(predicted, 1).sum()
+            src = _to_world(T, points.flatten(1)[:, sel].T)[:, :2]  # (N,2)
+            poses = []
+            for x in predicted:
+                dst = _to_world(T, x.flatten(2)[:, :, sel].transpose(1, 2))[..., :2]  # (K,N,2)
+                yaw, xy = planar_fit(src, dst, pose0[:2])
                 poses.append(torch.cat([xy, (pose0[2] + yaw)[:, None]], 1))
-            else:  # the object is out of sight: nothing to predict from
-                poses.append(pose0.expand(K, 3) + 0.0 * x.sum())
+            return torch.stack(poses, 1)
+
+        poses = track(obj, state.object_pose.to(self.device))
+        others = None
+        if state.n_others:
+            masks = subsample(state.other_masks.to(self.device), self.stride)
+            starts = state.other_poses.to(self.device)
+            others = torch.stack([track(m, p) for m, p in zip(masks, starts, strict=True)], 2)
+            others = others.to(caller)
         return Rollout(
-            torch.stack(poses, 1).to(caller),
+            poses.to(caller),
             pusher.to(caller),
             torch.stack(predicted, 1).to(caller) if clouds else None,
+            other_poses=others,
         )
+
+
+def _to_world(T_world_cam: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Camera-frame points (...,N,3) in the world frame."""
+    return points @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
 
 
 class EnsembleDynamics:
@@ -260,11 +292,15 @@ class EnsembleDynamics:
         dev = poses - mean
         radius = state.footprint_radius_m
         spread_sq = (dev[..., :2] ** 2).sum(-1) + (radius * dev[..., 2]) ** 2
+        others = None
+        if outs[0].other_poses is not None:
+            others = torch.stack([o.other_poses for o in outs]).mean(0)
         return Rollout(
             mean,
             outs[0].pusher_xy,
             torch.stack([o.clouds for o in outs]).mean(0) if clouds else None,
             spread=(spread_sq.mean(0) + 1e-12).sqrt(),  # offset: a finite gradient at 0
+            other_poses=others,
         )
 
 

@@ -100,6 +100,9 @@ class PushResult:
     replan_ms_median: float
     reason: str
     """"reached", "budget", or why the episode ended"""
+    others_moved_m: float | None = None
+    """how far the push moved the other objects: the largest planar displacement of any of
+    them from where it started (None: it was alone)"""
     diagnostics: dict = field(default_factory=dict)
     """exploitation diagnostics over the executed steps (``planner.diagnostics``)"""
     records: list[StepRecord] = field(default_factory=list)
@@ -110,6 +113,14 @@ class PushResult:
         keys = ("step", *STEP_FIGURES)
         per_step = [{k: getattr(r, k) for k in keys} for r in self.records]
         return {**{k: v for k, v in asdict(self).items() if k != "records"}, "per_step": per_step}
+
+
+def disturbance(start: np.ndarray, end: np.ndarray) -> float | None:
+    """The largest planar displacement (m) of the other objects from ``start`` (M,2) to ``end``
+    (M,2); None when there are none."""
+    if len(start) == 0:
+        return None
+    return float(np.linalg.norm(end - start, axis=1).max())
 
 
 def check_reachable(scenario: Scenario, goal: tuple[float, float, float]) -> None:
@@ -163,6 +174,8 @@ def run_push(
         replace(cfg.planning, seed=cfg.seed),
     )
     period = world.objects[cfg.object_index].yaw_period_rad
+    others = [j for j in range(len(world.objects)) if j != cfg.object_index]
+    others_start = obs.object_poses[others, :2].copy()
 
     def errors() -> tuple[float, float]:
         return pose_errors(obs.object_poses[cfg.object_index], goal, period)
@@ -218,6 +231,7 @@ def run_push(
         sim_time_s=obs.time_s,
         replan_ms_median=float(np.median([r.replan_ms for r in records])) if records else 0.0,
         reason=reason,
+        others_moved_m=disturbance(others_start, obs.object_poses[others, :2]),
         diagnostics=exploitation([asdict(r) for r in records]),
         records=records,
     )

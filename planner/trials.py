@@ -131,6 +131,10 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
         out[f"success_{tol}_ci95"] = list(wilson(k, n))
     for key in ("final_pos_err_m", "final_yaw_err_deg", "steps", "replan_ms_median"):
         out[f"median_{key}"] = float(np.median([r[key] for r in records])) if records else None
+    moved = [r["others_moved_m"] for r in records if r.get("others_moved_m") is not None]
+    out["trials_among_others"] = len(moved)
+    out["median_others_moved_m"] = float(np.median(moved)) if moved else None
+    out["others_moved_over_1cm"] = float(np.mean(np.array(moved) > 0.01)) if moved else None
     out["diagnostics"] = pooled(r["diagnostics"] for r in records)
     return out
 
@@ -151,6 +155,9 @@ def summary_cells(s: dict[str, Any]) -> dict[str, str]:
         "phantom": fmt(d["phantom_rate"], ".0%"),
         "missed": fmt(d["missed_rate"], ".0%"),
         "progress": fmt(d["progress_ratio"], ".2f"),
+        "disturbance": "–"
+        if s.get("median_others_moved_m") is None
+        else f"{100 * s['median_others_moved_m']:.1f} cm ({s['others_moved_over_1cm']:.0%} > 1 cm)",
     }
 
 
@@ -210,8 +217,10 @@ def _weights_of(model: str) -> str | None:
 def _compared(meta: dict) -> dict:
     """What makes two trial folders the same set: the configuration but ``n`` (the set is a
     prefix: any n extends or summarises it) and the planner settings only other optimisers
-    read."""
+    read; cost terms added later count with the weight the older runs had (none)."""
     out = {k: v for k, v in meta.items() if k != "n"}
+    if isinstance(meta.get("cost"), dict):  # runs from before the term had none: weight 0
+        out["cost"] = {"w_disturb": 0.0, **meta["cost"]}
     if isinstance(meta.get("planning"), dict):
         mine = meta["planner"]
         out["planning"] = {

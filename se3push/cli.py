@@ -104,7 +104,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
 
 def _cmd_trials(args: argparse.Namespace) -> int:
-    from planner.trials import TrialsConfig, run_trials
+    from planner.trials import TrialsConfig, run_trials, summary_cells
 
     cfg = TrialsConfig(scenario=args.scenario, n=args.n, model=args.model, planner=args.planner,
                        seed=args.seed, max_steps=args.max_steps,
@@ -122,7 +122,13 @@ def _cmd_trials(args: argparse.Namespace) -> int:
         f"  median steps            {s['median_steps']:.0f}\n"
         f"  median replan           {s['median_replan_ms_median']:.0f} ms\n"
         f"  model exploitation      {_diagnostics_line(s)}\n"
-        f"wrote {args.out}/trials.jsonl, summary.json, paths.png"
+        + (
+            f"  other objects moved     {summary_cells(s)['disturbance']} (median of the "
+            f"largest displacement, {s['trials_among_others']} trials among others)\n"
+            if s["trials_among_others"]
+            else ""
+        )
+        + f"wrote {args.out}/trials.jsonl, summary.json, paths.png"
     )
     return 0
 
@@ -167,6 +173,11 @@ def _planning_options(s: argparse.ArgumentParser) -> None:
         help="weight of an ensemble's disagreement in the cost (0: plan on the members' mean "
         f"alone; default {CostConfig.w_spread})",
     )  # fmt: skip
+    s.add_argument(
+        "--disturb-weight", type=float, default=CostConfig.w_disturb, metavar="W",
+        help="weight of the other objects' predicted displacement in the cost (0: ignore "
+        f"them; default {CostConfig.w_disturb})",
+    )  # fmt: skip
 
 
 def _planning_configs(args: argparse.Namespace) -> dict:
@@ -176,7 +187,8 @@ def _planning_configs(args: argparse.Namespace) -> dict:
 
     planning = PlannerConfig(horizon=args.horizon, samples=args.samples,
                              iterations=args.iterations, elites=args.elites)  # fmt: skip
-    return {"planning": planning, "cost": CostConfig(w_spread=args.spread_weight)}
+    cost = CostConfig(w_spread=args.spread_weight, w_disturb=args.disturb_weight)
+    return {"planning": planning, "cost": cost}
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
@@ -476,6 +488,8 @@ def _cmd_plan_push(args: argparse.Namespace) -> int:
             f"{result.sim_time_s:.2f} s simulated; median replan {result.replan_ms_median:.0f} ms; "
             f"loose success {result.success_loose}"
         )
+        if result.others_moved_m is not None:
+            print(f"the other objects moved at most {result.others_moved_m * 100:.1f} cm")
     return 0 if result.success_tight else 1
 
 

@@ -52,3 +52,55 @@ def test_the_way_round_reaches_the_far_side_without_crossing_the_object(angle_de
     else:
         pytest.fail(f"from {angle_deg} deg the way round never reached the pre-push point")
     assert target[0] < -spec.footprint_radius_m and abs(target[1]) < 1e-6
+
+
+class _CarriedDiskAmongOthers:
+    """The toy's carried disk (``tests.planner.toy``), dragging along every other object it
+    comes within ``REACH`` of."""
+
+    name, differentiable, REACH = "toy", True, 0.03
+
+    def __init__(self, dt):
+        from tests.planner.toy import CarriedDisk
+
+        self.disk = CarriedDisk(dt)
+
+    def rollout(self, state, actions, *, clouds=False):
+        from planner.dynamics import Rollout
+
+        base = self.disk.rollout(state, actions)
+        K, H, _ = actions.shape
+        xy, others = base.object_poses[..., :2], state.other_poses.to(actions)
+        pos, prev, out = others[:, :2].expand(K, -1, -1), state.object_pose[:2].to(actions), []
+        for h in range(H):
+            near = (xy[:, h, None] - pos).norm(dim=-1) < self.REACH  # (K,M)
+            pos = pos + near[..., None] * (xy[:, h] - prev)[:, None]
+            out.append(torch.cat([pos, others[:, 2].expand(K, -1)[..., None]], -1))
+            prev = xy[:, h]
+        return Rollout(base.object_poses, base.pusher_xy, other_poses=torch.stack(out, 1))
+
+
+def test_the_disturbance_term_keeps_the_other_objects_in_place():
+    """A straight push to the goal drags another object along; with the disturbance term the
+    planner goes round it, without it the other object is moved."""
+    import dataclasses
+
+    from planner import PlannerConfig, make_planner
+    from tests.planner.toy import TOY_COST, toy_state
+
+    scenario = load_scenario("single_box")
+    dt = scenario.action.dt_control_s
+    state = dataclasses.replace(toy_state(), other_poses=torch.tensor([[0.06, 0.015, 0.0]]),
+                                other_masks=torch.zeros(1, 4, 4, dtype=torch.bool))  # fmt: skip
+    dyn = _CarriedDiskAmongOthers(dt)
+    moved = {}
+    for w in (0.0, 1.0):
+        cost = PushCost(scenario, torch.tensor([0.12, 0.0, 0.0]),
+                        dataclasses.replace(TOY_COST, w_disturb=w))  # fmt: skip
+        cfg = PlannerConfig(horizon=8, samples=256, elites=16, iterations=8, colour=0.0, shrink=1.0)
+        _, info = make_planner("cem", dyn, cost, scenario, cfg).plan(state)
+        U = torch.from_numpy(info.actions).float()[None]
+        end = dyn.rollout(state, U).other_poses[0, -1, 0, :2]
+        moved[w] = float((end - state.other_poses[0, :2]).norm())
+        assert info.predicted_poses[-1, 0] > 0.08  # it pushes its object toward the goal
+    assert moved[0.0] > 0.03 and moved[1.0] < 0.005, moved

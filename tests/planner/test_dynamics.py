@@ -136,6 +136,38 @@ def test_a_stride_2_network_plans_from_full_resolution_observations(tiny):
     torch.testing.assert_close(out.object_poses[..., 2], state.object_pose[2].expand(2, 3))
 
 
+def _two_objects():
+    scenario = load_scenario("multi_object")
+    world = PushWorld(scenario)
+    seed = next(s for s in range(50) if len(world.reset(s).object_poses) >= 2)
+    return scenario, world, world.reset(seed)
+
+
+def test_backends_predict_the_other_objects_too():
+    """Among other objects every backend predicts their poses: the oracle what the world then
+    does, a network that moves every point by a known step each of them moved by it."""
+    scenario, world, obs = _two_objects()
+    state = plan_state(obs, world, 1)
+    M = len(world.objects) - 1
+    assert state.n_others == M and state.other_masks.shape == (M, *obs.valid.shape)
+    U = 0.1 * torch.ones(2, 3, 2)
+    oracle = make_dynamics("oracle", scenario, world=world, object_index=1).rollout(state, U)
+    for a in U[0].numpy():
+        obs = world.step(a)
+    np.testing.assert_allclose(oracle.other_poses[0, -1].numpy(),
+                               np.delete(obs.object_poses, 1, 0), atol=1e-6)  # fmt: skip
+    model = build_model(ModelConfig(k=3))
+    step = torch.tensor([0.01, -0.02, 0.0])
+    with torch.no_grad():
+        model.se3_head[-1].bias.copy_(torch.cat([state.T_world_cam[:3, :3].T @ step,
+                                                 torch.zeros(3)]).repeat(3))  # fmt: skip
+    learned = LearnedDynamics(model.eval(), scenario, name="se3net").rollout(state, U)
+    expected = state.other_poses[:, :2] + 3 * step[:2]
+    torch.testing.assert_close(learned.other_poses[0, -1, :, :2], expected, atol=1e-5, rtol=0)
+    still = NoMotionDynamics(scenario).rollout(state, U).other_poses
+    torch.testing.assert_close(still[1, 2], state.other_poses)
+
+
 def test_backend_errors(tiny):
     with pytest.raises(
         ValueError,

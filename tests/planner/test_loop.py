@@ -134,3 +134,18 @@ def test_plan_push_refuses_a_step_budget_below_one(steps, capsys):
     code = plan_push_main(["--goal", "0.1", "0.0", "0", "--max-steps", steps])
     assert code == 2
     assert "--max-steps must be a positive integer" in capsys.readouterr().err
+
+
+def test_results_report_how_far_the_other_objects_were_moved():
+    from planner.loop import disturbance
+
+    assert disturbance(np.zeros((0, 2)), np.zeros((0, 2))) is None
+    assert disturbance(np.zeros((2, 2)), np.array([[0.03, 0.04], [0.0, 0.01]])) == 0.05
+    scenario = load_scenario("multi_object")
+    world = PushWorld(scenario)
+    seed = next(s for s in range(50) if len(world.reset(s).object_poses) >= 2)
+    alone = run_push(PushConfig(goal=(0.1, 0.0, 0.0), model="no-motion", max_steps=1))
+    among = run_push(PushConfig(goal=(0.1, 0.0, 0.0), scenario="multi_object", seed=seed,
+                                model="no-motion", max_steps=2))  # fmt: skip
+    assert alone.others_moved_m is None and among.others_moved_m is not None
+    assert "others_moved_m" in among.summary()
