@@ -158,6 +158,19 @@ def scenario_dict(scenario: Scenario) -> dict[str, Any]:
     return json.loads(json.dumps(strip(scenario)))
 
 
+def scenario_fingerprint(scenario: Scenario) -> dict[str, Any]:
+    """What a learned model depends on in a scenario: what it sees and how actions act (its
+    objects may differ: a model trained on several scenarios of one fingerprint serves all)."""
+    return json.loads(
+        json.dumps(
+            {
+                "camera": dataclasses.asdict(scenario.camera),
+                "action": dataclasses.asdict(scenario.action),
+            }
+        )  # fmt: skip
+    )
+
+
 def differences(
     old: Any,
     new: Any,

@@ -8,7 +8,6 @@ Loading one that does not fit the scenario or this code is refused, saying what 
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import io
 import json
@@ -20,7 +19,7 @@ from typing import Any
 import torch
 
 from scenarios import InputError, Scenario
-from scenarios.config import differences, scenario_dict
+from scenarios.config import differences, scenario_dict, scenario_fingerprint
 from se3net.device import check_device
 from se3net.model import ModelConfig, build_model
 from sim.dataset import CONTROL_LAYOUT, code_version
@@ -45,18 +44,6 @@ def manifest_hash(manifest: dict[str, Any]) -> str:
         sort_keys=True,
     )
     return hashlib.sha256(blob.encode()).hexdigest()
-
-
-def scenario_fingerprint(scenario: Scenario) -> dict[str, Any]:
-    """What a model depends on in a scenario: what it sees and how actions act."""
-    return json.loads(
-        json.dumps(
-            {
-                "camera": dataclasses.asdict(scenario.camera),
-                "action": dataclasses.asdict(scenario.action),
-            }
-        )
-    )
 
 
 def save_checkpoint(

@@ -16,8 +16,9 @@ import torch
 from torch.utils.data import Dataset
 
 from scenarios import NoiseConfig
+from scenarios.config import differences, scenario_fingerprint
 from sim.camera import DepthCamera
-from sim.dataset import CONTROL_LAYOUT
+from sim.dataset import CONTROL_LAYOUT, with_shape_details
 from sim.datastore import load_episodes, read_manifest, scenario_of
 from sim.shards import DataError
 
@@ -90,13 +91,21 @@ class PushDataset(Dataset):
             raise DataError("no dataset folder given")
         self.manifests = [read_manifest(r) for r in roots]
         self.manifest = self.manifests[0]
+        first = scenario_fingerprint(scenario_of(self.manifest))
         for r, m in zip(roots[1:], self.manifests[1:], strict=True):
-            for key in ("scenario", "steps_per_episode", "control_layout"):
+            for key in ("steps_per_episode", "control_layout"):
                 if m["identity"][key] != self.manifest["identity"][key]:
                     raise DataError(
-                        f"{r} and {roots[0]} differ in {key}; only datasets of one scenario "
-                        "and episode length can be pooled"
+                        f"{r} and {roots[0]} differ in {key}; only datasets of one episode "
+                        "length and control layout can be pooled"
                     )
+            diffs = differences(first, scenario_fingerprint(scenario_of(m)), old_has=str(roots[0]),
+                                new_has=str(r))  # fmt: skip
+            if diffs:  # other objects are welcome: that is what a generalist is trained on
+                raise DataError(
+                    f"{r} and {roots[0]} were recorded with other cameras or actions "
+                    f"({'; '.join(diffs[:3])}); only such data can be pooled"
+                )
         steps = self.manifest["identity"]["steps_per_episode"]
         if not 1 <= horizon <= steps:
             raise DataError(
@@ -115,7 +124,8 @@ class PushDataset(Dataset):
         self._T_cam_world = self.camera.T_cam_world
         self.horizon, self.noise, self.seed, self.epoch = horizon, noise, seed, 0
         parts = [load_episodes(r, split, verify=verify) for r in roots]
-        self.a = {k: np.concatenate([p.arrays[k] for p in parts]) for k in parts[0].arrays}
+        arrays = [p.arrays if len(parts) == 1 else with_shape_details(p.arrays) for p in parts]
+        self.a = {k: np.concatenate([a[k] for a in arrays]) for k in arrays[0]}
         self.episode_index = np.concatenate([p.index for p in parts])
         lengths = self.a["length"].astype(int)
         source = np.repeat(np.arange(len(parts)), [len(p.index) for p in parts])

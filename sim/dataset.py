@@ -99,6 +99,17 @@ STEP_MODES = (*MODES, PLANNER_MODE)
 """every mode a recorded step can have (``modes`` holds indices into this)"""
 
 
+def with_shape_details(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Loaded episode arrays with the shape details (bar widths, outlines) that data of
+    scenarios with boxes and cylinders alone does not store, filled in as absent, so that
+    such data pools with data of other shapes."""
+    n = len(arrays["n_objects"])
+    out = dict(arrays)
+    out.setdefault("object_arm", np.zeros((n, MAX_PARTS - 2)))
+    out.setdefault("object_outline", np.full((n, MAX_PARTS - 2, MAX_OUTLINE, 2), np.nan))
+    return out
+
+
 def episode_objects(arrays: dict[str, np.ndarray], e: int) -> list[ObjectSpec]:
     """The objects of episode ``e`` of loaded dataset arrays, as :class:`EpisodeRecorder`
     stored them."""

@@ -207,3 +207,15 @@ def test_pooled_datasets_must_share_scenario_and_episode_length(tiny_data, tmp_p
         PushDataset([tiny_data, other])
     twice = PushDataset([tiny_data, tiny_data], split="train")
     assert len(twice) == 2 * len(PushDataset(tiny_data, split="train"))
+
+
+def test_data_of_other_objects_pools_when_camera_and_actions_agree(tiny_data, tmp_path):
+    """A generalist trains on several scenarios' data: what must agree is what the network
+    sees and how actions act, not the objects."""
+    for name in ("single_box", "household"):
+        generate(DataConfig(name, episodes=2, steps_per_episode=8), tmp_path / name,
+                 progress=False)  # fmt: skip
+    both = PushDataset([tmp_path / "single_box", tmp_path / "household"], split="all")
+    assert len(both) == 2 * 2 * 8
+    with pytest.raises(DataError, match="other cameras or actions .*camera.width"):
+        PushDataset([tmp_path / "single_box", tiny_data])
