@@ -103,6 +103,8 @@ class PushResult:
     others_moved_m: float | None = None
     """how far the push moved the other objects: the largest planar displacement of any of
     them from where it started (None: it was alone)"""
+    pushed_object: dict = field(default_factory=dict)
+    """the pushed object's shape, size, mass and friction (``sim.shapes.ObjectSpec``)"""
     diagnostics: dict = field(default_factory=dict)
     """exploitation diagnostics over the executed steps (``planner.diagnostics``)"""
     records: list[StepRecord] = field(default_factory=list)
@@ -232,6 +234,7 @@ def run_push(
         replan_ms_median=float(np.median([r.replan_ms for r in records])) if records else 0.0,
         reason=reason,
         others_moved_m=disturbance(others_start, obs.object_poses[others, :2]),
+        pushed_object=asdict(world.objects[cfg.object_index]),
         diagnostics=exploitation([asdict(r) for r in records]),
         records=records,
     )

@@ -217,3 +217,30 @@ def hull_outline(points: np.ndarray) -> np.ndarray:
 
 def _cross(o: tuple, a: tuple, b: tuple) -> float:
     return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+
+def outside_ranges(spec: ObjectSpec, objects) -> list[str]:
+    """Why an object lies outside the ranges a scenario's ``objects`` (an ``ObjectsConfig``)
+    draws from: a shape family it never draws, a size, mass or friction beyond its ranges.
+    Empty: the scenario could have drawn it (what a held-out scenario must never be)."""
+    if spec.shape not in objects.shapes:
+        return [f"a {spec.shape}, a shape the scenario does not draw"]
+    sx, sy, sz = spec.size_m
+    if spec.shape == "cylinder":
+        r_lo, r_hi = objects.cylinder_radius_m
+        sizes = [(sx / 2, (r_lo, r_hi), "radius"), (sz, objects.cylinder_height_m, "height")]
+    else:
+        ranges = {"box": objects.box_size_m, "capsule": objects.capsule_size_m,
+                  "hull": objects.hull_size_m}.get(spec.shape, objects.bar_size_m)  # fmt: skip
+        if spec.shape == "hull":  # the hull of points drawn in the rectangle is smaller
+            ranges = ((0.0, ranges[0][1]), (0.0, ranges[1][1]), ranges[2])
+        sizes = list(zip((sx, sy, sz), ranges, ("x extent", "y extent", "height"), strict=True))
+        if spec.shape in ("L", "T"):
+            sizes.append((spec.arm_m, objects.bar_width_m, "bar width"))
+    sizes.append((spec.mass_kg, objects.mass_kg, "mass"))
+    sizes.append((spec.friction, objects.friction, "friction"))
+    return [
+        f"{what} {value:.3g} outside [{lo:.3g}, {hi:.3g}]"
+        for value, (lo, hi), what in sizes
+        if not lo - 1e-9 <= value <= hi + 1e-9
+    ]

@@ -142,3 +142,17 @@ def test_datasets_store_every_shape_as_the_world_drew_it(tmp_path):
                                        np.array(b.outline).reshape(-1, 2))  # fmt: skip
             seen.add(a.shape)
     assert len(seen) >= 2
+
+
+def test_the_held_out_objects_lie_outside_the_training_ranges():
+    """Every object of heldout_objects is of a family household never draws or beyond its
+    sizes and masses, and household's own objects are never flagged."""
+    from sim.shapes import outside_ranges
+
+    train, held = load_scenario("household"), load_scenario("heldout_objects")
+    for scenario, outside in ((held, True), (train, False)):
+        world = PushWorld(scenario)
+        for seed in range(25):
+            world.reset(seed)
+            for spec in world.objects:
+                assert bool(outside_ranges(spec, train.objects)) == outside, spec
