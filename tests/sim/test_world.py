@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from scenarios import InputError
-from sim import ActionError, EpisodeEnded, PushWorld, associated_targets
+from se3net.data import VISIBLE_DEPTH_TOL_M
+from sim import SHAPES, ActionError, EpisodeEnded, PushWorld, associated_targets
 from sim.camera import invert
 from tests.conftest import with_fields
 
@@ -15,8 +16,9 @@ def _rot_z(yaw: float) -> np.ndarray:
     return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
 
 
-def test_associations_are_exact_for_a_known_object_motion(tiny_world):
-    world = tiny_world
+@pytest.mark.parametrize("shape", SHAPES)
+def test_associations_are_exact_for_a_known_object_motion(tiny, shape):
+    world = PushWorld(with_fields(tiny, "objects", shapes=(shape,)))  # a mesh body for a hull
     obs = world.reset(5)
     # move object 0 by a known transform: 3 cm along x, 2 cm along y, 25 deg about its centre
     T_move = np.eye(4)
@@ -40,6 +42,14 @@ def test_associations_are_exact_for_a_known_object_motion(tiny_world):
     expected = (world.camera.T_cam_world @ T_move @ p_world)[:3]
     assert on_object.sum() > 10
     assert np.abs(targets[:, on_object] - expected).max() < 1e-5
+    # where a moved point is in view, the later frame sees that part there
+    K, z = world.camera.K, targets[2, on_object]
+    u = np.floor(targets[0, on_object] / z * K[0, 0] + K[0, 2]).astype(int)
+    v = np.floor(targets[1, on_object] / z * K[1, 1] + K[1, 2]).astype(int)
+    inside = (u >= 0) & (u < later.part.shape[1]) & (v >= 0) & (v < later.part.shape[0])
+    u, v = u.clip(0, later.part.shape[1] - 1), v.clip(0, later.part.shape[0] - 1)
+    near = np.abs(later.points_cam[2, v, u] - z) < VISIBLE_DEPTH_TOL_M
+    assert np.mean(inside & (later.part[v, u] == 2) & near) > 0.6
     # static points do not move; pixels that hit nothing have no target
     np.testing.assert_allclose(
         targets[:, obs.part == 0], obs.points_cam[:, obs.part == 0], atol=1e-9
