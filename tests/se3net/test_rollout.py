@@ -39,14 +39,19 @@ def test_one_cloud_encoded_once_gives_the_clouds_of_a_batch_of_copies(variant):
     assert (once[-1] - once[0]).abs().max() > 1e-3  # the steps differ: the test can fail
 
 
-def test_carried_masks_against_the_full_rollout_of_the_shipped_model():
+@pytest.mark.parametrize(
+    ("model", "max_mm", "max_deg"),
+    [("single_box_64", 20.0, 7.0), ("default", 18.0, 19.0)],  # measured 17.1/5.6, 14.1/15.3
+)
+def test_carried_masks_against_the_full_rollout_of_the_shipped_models(model, max_mm, max_deg):
     """Masks decoded once and carried with the points, against masks decoded at every step,
     on pushes that bring the pusher into contact with the box during the horizon.
 
-    Measured (seed 3, 32 sequences): up to 17.1 mm and 5.6 deg apart after 4 steps. The masks
-    of the first step say which points move with the pusher *before* contact; once the box
-    is touched it should join the pusher's motion, which a carried mask cannot do. So
-    carrying masks is not exact for pushing, and it is not the planner's default."""
+    Measured (seed 3, 32 sequences), the most apart after 4 steps: 17.1 mm and 5.6 deg for
+    the 64x64 model, 14.1 mm and 15.3 deg for the 32x32 default. The masks of the first step
+    say which points move with the pusher *before* contact; once the box is touched it should
+    join the pusher's motion, which a carried mask cannot do. So carrying masks is not exact
+    for pushing, and it is not the planner's default."""
     scenario = load_scenario("single_box")
     world = PushWorld(scenario)
     obs = world.reset(3)
@@ -59,8 +64,8 @@ def test_carried_masks_against_the_full_rollout_of_the_shipped_model():
     d = torch.from_numpy(obs.object_poses[0, :2] - obs.pusher_xy_m).float()
     gen = torch.Generator().manual_seed(0)
     actions = (0.14 * d / d.norm() + 0.05 * torch.randn(32, 4, 2, generator=gen)).clamp(-0.15, 0.15)
-    full = make_dynamics("se3net", scenario)
-    carried = make_dynamics("se3net", scenario)
+    full = make_dynamics("se3net", scenario, model=model)
+    carried = make_dynamics("se3net", scenario, model=model)
     carried.carry_masks = True
     with torch.inference_mode():
         a = full.rollout(state, actions).object_poses
@@ -70,4 +75,4 @@ def test_carried_masks_against_the_full_rollout_of_the_shipped_model():
     torch.testing.assert_close(a[:, 0], b[:, 0])  # the first step is the same prediction
     pos_err = (a[..., :2] - b[..., :2]).norm(dim=-1)
     yaw_err = torch.rad2deg((a[..., 2] - b[..., 2]).abs())
-    assert pos_err.max() < 0.020 and yaw_err.max() < 7.0
+    assert pos_err.max() < max_mm / 1000 and yaw_err.max() < max_deg
