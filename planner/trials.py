@@ -214,13 +214,26 @@ def _weights_of(model: str) -> str | None:
     return ENSEMBLE_SEP.join(model_sha256(p) for p in parts)
 
 
+def _names_shipped_weights(model: str) -> bool:
+    """Whether ``model`` names a shipped checkpoint (``default``, ``se3net/weights/NAME.pt``),
+    in part for an ensemble."""
+    from planner.dynamics import ENSEMBLE_SEP
+    from se3net.checkpoint import DEFAULT_MODEL, resolve_model
+
+    shipped = DEFAULT_MODEL.parent.resolve()
+    return any(resolve_model(m).resolve().parent == shipped for m in model.split(ENSEMBLE_SEP))
+
+
 def _compared(meta: dict) -> dict:
     """What makes two trial folders the same set: the configuration but ``n`` (the set is a
     prefix: any n extends or summarises it) and the planner settings only other optimisers
-    read; cost terms added later count with the weight the older runs had (none)."""
+    read; cost terms added later count with the weight the older runs had (none), and the
+    disturbance weight not at all where the pushed object is always alone."""
     out = {k: v for k, v in meta.items() if k != "n"}
     if isinstance(meta.get("cost"), dict):  # runs from before the term had none: weight 0
         out["cost"] = {"w_disturb": 0.0, **meta["cost"]}
+        if load_scenario(meta["scenario"]).objects.count[1] == 1:  # alone: the term is inert
+            del out["cost"]["w_disturb"]
     if isinstance(meta.get("planning"), dict):
         mine = meta["planner"]
         out["planning"] = {
@@ -260,6 +273,11 @@ def run_trials(
     if old_meta is not None:
         old, new = _compared(old_meta), _compared(meta)
         if "model_sha256" not in old:  # folders from before weights were recorded
+            if _names_shipped_weights(cfg.model):
+                raise InputError(
+                    f"{out} predates the record of its model's weights, and {cfg.model!r} names "
+                    "shipped weights that have changed since; use a new --out folder"
+                )
             new.pop("model_sha256")
         if old != new:
             raise InputError(

@@ -154,11 +154,16 @@ class MeshcatVisualiser:
 
         labels = obs.part.astype(int)
         if model is not None and hasattr(model, "se3_head"):
+            from se3net.data import subsample
+
+            s = model.cfg.stride  # a planning-resolution network sees every s-th pixel
             with torch.no_grad():
-                pts = torch.from_numpy(obs.points_cam).float()[None]
+                pts = subsample(torch.from_numpy(obs.points_cam).float(), s)[None]
+                valid = subsample(torch.from_numpy(obs.valid), s)[None]
                 u = torch.tensor([[0.0, 0.0, *obs.pusher_xy_m]], dtype=torch.float32)
-                masks = model(pts, u, torch.from_numpy(obs.valid)[None]).masks
-            labels = masks[0].argmax(0).numpy()
+                masks = model(pts, u, valid).masks
+            # each camera pixel coloured by the network pixel it falls in
+            labels = masks[0].argmax(0).numpy().repeat(s, 0).repeat(s, 1)
         T = self.world.camera.T_world_cam
         p = (T[:3, :3] @ obs.points_cam.reshape(3, -1) + T[:3, 3:])[:, obs.valid.ravel()]
         colours = COLOURS[labels.ravel()[obs.valid.ravel()] % len(COLOURS)].T

@@ -48,8 +48,9 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
 
 
 def scenario_from_dict(table: dict[str, Any], *, where: str = "stored scenario") -> Scenario:
-    """Rebuild (and validate) a scenario from ``dataclasses.asdict`` output, e.g. the copy a
-    dataset manifest or a checkpoint keeps."""
+    """Rebuild (and validate) a scenario from ``scenarios.config.scenario_dict`` output (or
+    ``dataclasses.asdict``), e.g. the copy a dataset manifest or a checkpoint keeps; fields
+    with a default that it leaves out get their default."""
     return _build(Scenario, table, where, "")
 
 

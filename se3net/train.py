@@ -78,7 +78,7 @@ class TrainConfig:
     data, a small pool beside the exploration data); 0: every example equally likely"""
     stride: int = 1
     """the network sees every stride-th pixel of the camera's image in each direction (2: a
-    32x32 planning-resolution model of 64x64 data, about 4x less work a prediction)"""
+    32x32 planning-resolution model of 64x64 data, about 4x fewer pixels a prediction)"""
 
     def __post_init__(self) -> None:
         for name in ("iters", "batch", "eval_every", "val_examples", "rollout_steps", "stride"):

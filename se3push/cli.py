@@ -301,7 +301,7 @@ def _parser() -> argparse.ArgumentParser:
         type=int,
         default=1,
         help="the network sees every N-th pixel of the camera's image in each direction "
-        "(2: a 32x32 planning-resolution model of 64x64 data, about 4x faster to plan with)",
+        "(2: a 32x32 planning-resolution model of 64x64 data, about 3x faster to plan with)",
     )
     s.add_argument("--resume", action="store_true", help="continue the run in --out exactly")
     s.set_defaults(run=_cmd_train)

@@ -101,8 +101,8 @@ STEP_MODES = (*MODES, PLANNER_MODE)
 
 def with_shape_details(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Loaded episode arrays with the shape details (bar widths, outlines) that data of
-    scenarios with boxes and cylinders alone does not store, filled in as absent, so that
-    such data pools with data of other shapes."""
+    scenarios without hulls, L- or T-shapes does not store, filled in as absent, so that such
+    data pools with data of those shapes."""
     n = len(arrays["n_objects"])
     out = dict(arrays)
     out.setdefault("object_arm", np.zeros((n, MAX_PARTS - 2)))

@@ -111,9 +111,10 @@ class ObjectSpec:
             return [Piece(((-(hx - r), 0.0), (hx - r, 0.0)), r)]
         if self.shape == "hull":
             return [Piece(self.outline)]
+        # two bars that do not overlap (the mass is shared out by area)
         if self.shape == "L":  # a bar along x at the bottom, one along y at the left
-            return [_rect(-hx, hx, -hy, -hy + w), _rect(-hx, -hx + w, -hy, hy)]
-        return [_rect(-hx, hx, hy - w, hy), _rect(-w / 2, w / 2, -hy, hy)]  # T
+            return [_rect(-hx, hx, -hy, -hy + w), _rect(-hx, -hx + w, -hy + w, hy)]
+        return [_rect(-hx, hx, hy - w, hy), _rect(-w / 2, w / 2, -hy, hy - w)]  # T
 
     def distance_to_footprint_m(self, xy_obj: np.ndarray) -> float:
         """Distance from a point ``(2,)`` in the object's frame to its footprint (0 inside)."""
@@ -157,6 +158,8 @@ class ObjectSpec:
         for j, piece in enumerate(self.pieces()):
             v, r = piece.array, piece.radius
             if len(v) == 1:
+                parts.append((_cylinder(v[0], r, hz), piece.area()))
+            elif len(v) == 2 and np.allclose(v[0], v[1]):  # a stadium as wide as it is long
                 parts.append((_cylinder(v[0], r, hz), piece.area()))
             elif len(v) == 2:  # a stadium: a box and a cylinder at each end
                 d = v[1] - v[0]

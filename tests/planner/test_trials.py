@@ -206,3 +206,21 @@ def test_a_folder_is_refused_when_its_model_names_other_weights_now(tiny_data, t
     model.write_bytes((tmp_path / "m1" / "best.pt").read_bytes())
     with pytest.raises(InputError, match="model_sha256: folder has"):
         run_trials(replace(cfg, n=2), tmp_path / "t", progress=False)
+
+
+def test_an_old_folder_of_a_shipped_model_name_is_refused_and_of_a_lone_object_extends(tmp_path):
+    """Folders from before weights were recorded: a shipped name (``default``) may mean other
+    weights now, so they are refused; the disturbance weight does not matter alone."""
+    cfg = TrialsConfig("single_box", n=1, model="default", max_steps=1)
+    run_trials(cfg, tmp_path / "old", progress=False)
+    meta = json.loads((tmp_path / "old" / "config.json").read_text())
+    del meta["model_sha256"], meta["cost"]["w_disturb"]
+    (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="predates the record of its model's weights"):
+        run_trials(replace(cfg, n=2), tmp_path / "old", progress=False)
+    lone = TrialsConfig("single_box", n=1, model="no-motion", max_steps=1)
+    run_trials(lone, tmp_path / "lone", progress=False)
+    meta = json.loads((tmp_path / "lone" / "config.json").read_text())
+    del meta["model_sha256"], meta["cost"]["w_disturb"]
+    (tmp_path / "lone" / "config.json").write_text(json.dumps(meta))
+    assert run_trials(replace(lone, n=2), tmp_path / "lone", progress=False)["trials"] == 2

@@ -13,6 +13,14 @@ from sim import PushWorld
 pytestmark = pytest.mark.viz
 
 
+def _rows(flat) -> list:
+    """meshcat's packed float arrays as rows of three."""
+    import numpy as np
+
+    values = np.frombuffer(flat.data, dtype=np.float32) if hasattr(flat, "data") else flat
+    return np.asarray(values).reshape(-1, 3).tolist()
+
+
 def _commands(html: str) -> list[dict]:
     import umsgpack  # meshcat's own dependency
 
@@ -63,3 +71,20 @@ def test_plan_push_record_flag(tmp_path, capsys):
     assert plan_push_main(args) == 1
     assert f"wrote {out} (2 frames)" in capsys.readouterr().out
     assert out.stat().st_size > 100_000
+
+
+def test_the_shipped_planning_resolution_model_colours_the_cloud_by_its_masks(tmp_path):
+    """The default network sees every other pixel: the recording still shows the full cloud,
+    each point coloured by the mask of the network pixel it falls in."""
+    scenario = load_scenario("single_box")
+    obs = PushWorld(scenario).reset(0)
+    x, y, yaw = obs.object_poses[0]
+    out = tmp_path / "default.html"
+    viz = MeshcatVisualiser(record=out)
+    cfg = PushConfig(goal=(float(x - 0.05), float(y), float(yaw)), max_steps=1)
+    run_push(cfg, viz=viz)
+    (cloud,) = [c for c in _commands(out.read_text()) if c.get("path") == "/meshcat/cloud"]
+    attrs = cloud["object"]["geometries"][0]["data"]["attributes"]
+    n = obs.valid.sum()
+    assert len(_rows(attrs["position"]["array"])) == n  # every camera point, not every other
+    assert len(set(map(tuple, _rows(attrs["color"]["array"])))) >= 2  # coloured by mask

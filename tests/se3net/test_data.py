@@ -200,7 +200,7 @@ def test_a_strided_dataset_gives_every_other_pixel_with_its_full_resolution_targ
         PushDataset(root, stride=3)
 
 
-def test_pooled_datasets_must_share_scenario_and_episode_length(tiny_data, tmp_path):
+def test_pooled_datasets_must_share_episode_length(tiny_data, tmp_path):
     other = tmp_path / "short"
     generate(DataConfig("tiny", episodes=2, steps_per_episode=4), other, progress=False)
     with pytest.raises(DataError, match="differ in steps_per_episode"):

@@ -76,3 +76,4 @@ def test_carried_masks_against_the_full_rollout_of_the_shipped_models(model, max
     pos_err = (a[..., :2] - b[..., :2]).norm(dim=-1)
     yaw_err = torch.rad2deg((a[..., 2] - b[..., 2]).abs())
     assert pos_err.max() < max_mm / 1000 and yaw_err.max() < max_deg
+    assert pos_err.max() > 0.005  # and they do differ: carrying masks is not exact

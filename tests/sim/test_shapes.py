@@ -122,3 +122,20 @@ def test_the_held_out_objects_lie_outside_the_training_ranges():
             world.reset(seed)
             for spec in world.objects:
                 assert bool(outside_ranges(spec, train.objects)) == outside, spec
+
+
+def test_a_capsule_as_wide_as_it_is_long_builds_and_l_bars_share_mass_by_area():
+    import mujoco
+
+    from sim import build_mjcf
+
+    scenario = load_scenario("tiny")
+    round_capsule = ObjectSpec("capsule", (0.05, 0.05, 0.04), 0.2, 0.5)
+    L = ObjectSpec("L", (0.10, 0.08, 0.05), 0.3, 0.5, arm_m=0.03)
+    model = mujoco.MjModel.from_xml_string(build_mjcf(scenario, [round_capsule, L]))
+    body = model.body("object1").id
+    assert model.body_mass[body] == pytest.approx(0.3)
+    # the L's centre of mass, by area: bar x in [-.05, .05], y in [-.04, -.01] (30 cm^2) and
+    # bar x in [-.05, -.02], y in [-.01, .04] (15 cm^2)
+    com = (30 * np.array([0.0, -0.025]) + 15 * np.array([-0.035, 0.015])) / 45
+    np.testing.assert_allclose(model.body_ipos[body][:2], com, atol=1e-4)
