@@ -136,6 +136,16 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     out["median_others_moved_m"] = float(np.median(moved)) if moved else None
     out["others_moved_over_1cm"] = float(np.mean(np.array(moved) > 0.01)) if moved else None
     out["diagnostics"] = pooled(r["diagnostics"] for r in records)
+    shapes: dict[str, list[int]] = {}  # where generalisation stops: tight, loose, trials
+    for r in records:
+        if "pushed_object" in r:
+            row = shapes.setdefault(r["pushed_object"]["shape"], [0, 0, 0])
+            row[0], row[1], row[2] = (
+                row[0] + r["success_tight"],
+                row[1] + r["success_loose"],
+                row[2] + 1,
+            )
+    out["by_shape"] = {k: {"tight": v[0], "loose": v[1], "trials": v[2]} for k, v in shapes.items()}
     return out
 
 

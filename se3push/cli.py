@@ -128,6 +128,16 @@ def _cmd_trials(args: argparse.Namespace) -> int:
             if s["trials_among_others"]
             else ""
         )
+        + (
+            "  by pushed object        "
+            + ", ".join(
+                f"{k} {v['tight']}/{v['trials']} ({v['loose']} loose)"
+                for k, v in s["by_shape"].items()
+            )  # fmt: skip
+            + "\n"
+            if len(s["by_shape"]) > 1
+            else ""
+        )
         + f"wrote {args.out}/trials.jsonl, summary.json, paths.png"
     )
     return 0

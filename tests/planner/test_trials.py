@@ -224,3 +224,17 @@ def test_an_old_folder_of_a_shipped_model_name_is_refused_and_of_a_lone_object_e
     del meta["model_sha256"], meta["cost"]["w_disturb"]
     (tmp_path / "lone" / "config.json").write_text(json.dumps(meta))
     assert run_trials(replace(lone, n=2), tmp_path / "lone", progress=False)["trials"] == 2
+
+
+def test_summaries_count_successes_by_the_pushed_objects_shape():
+    from planner.diagnostics import exploitation
+    from planner.trials import summarize
+
+    def rec(shape, tight, loose):
+        return {"success_tight": tight, "success_loose": loose, "final_pos_err_m": 0.0,
+                "final_yaw_err_deg": 0.0, "steps": 1, "replan_ms_median": 1.0,
+                "diagnostics": exploitation([]), "pushed_object": {"shape": shape}}  # fmt: skip
+
+    s = summarize([rec("T", True, True), rec("T", False, True), rec("box", False, False)])
+    assert s["by_shape"] == {"T": {"tight": 1, "loose": 2, "trials": 2},
+                             "box": {"tight": 0, "loose": 0, "trials": 1}}  # fmt: skip
