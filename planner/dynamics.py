@@ -213,16 +213,21 @@ class LearnedDynamics:
         self.carry_masks = carry_masks
         self.stride = model.cfg.stride  # the network sees every stride-th pixel
 
+    def network_view(self, state: PlanState) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """What the network sees of a state, on its device: the cloud (3,h,w), the valid
+        pixels and the pushed object's pixels (h,w), every stride-th pixel of the camera's."""
+        return tuple(
+            subsample(x.to(self.device), self.stride)
+            for x in (state.points, state.valid, state.object_mask)
+        )
+
     def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
         """Predictions for ``actions`` (K,H,2); ``clouds`` at the network's resolution."""
         K, H, _ = actions.shape
         caller = actions.device  # the network runs on self.device; results go back to the caller
         actions = actions.to(self.device)
         pusher = integrate_pusher(state, actions, self.dt)
-        points, valid, obj = (
-            subsample(x.to(self.device), self.stride)
-            for x in (state.points, state.valid, state.object_mask)
-        )
+        points, valid, obj = self.network_view(state)
         predicted = rollout(
             self.model,
             points[None],

@@ -91,7 +91,8 @@ class PushDataset(Dataset):
             raise DataError("no dataset folder given")
         self.manifests = [read_manifest(r) for r in roots]
         self.manifest = self.manifests[0]
-        first = scenario_fingerprint(scenario_of(self.manifest))
+        self.scenario = scenario_of(self.manifest)
+        first = scenario_fingerprint(self.scenario)
         for r, m in zip(roots[1:], self.manifests[1:], strict=True):
             for key in ("steps_per_episode", "control_layout"):
                 if m["identity"][key] != self.manifest["identity"][key]:
@@ -112,7 +113,6 @@ class PushDataset(Dataset):
                 f"horizon {horizon} does not fit episodes of {steps} steps in {root}; "
                 f"choose 1..{steps} or generate longer episodes (--steps-per-episode)"
             )
-        self.scenario = scenario_of(self.manifest)
         cam = self.scenario.camera
         if stride < 1 or cam.height % stride or cam.width % stride:
             raise DataError(

@@ -145,7 +145,6 @@ def replan_breakdown(
 
     from planner import PlannerConfig, PushCost, make_dynamics
     from planner.dynamics import planar_fit
-    from se3net.data import subsample
     from se3net.model import transform_layer
     from se3net.se3 import params_to_transform
 
@@ -155,8 +154,7 @@ def replan_breakdown(
     dyn = make_dynamics("se3net", scenario, model=model, device=device)
     net, bb = dyn.model, dyn.model.backbone
     cost = PushCost(scenario, goal)
-    x1, valid, obj = (subsample(x.to(device), dyn.stride)[None]
-                      for x in (state.points, state.valid, state.object_mask))  # fmt: skip
+    x1, valid, obj = (x[None] for x in dyn.network_view(state))
     sel = obj.flatten().nonzero()[:, 0]
 
     def timed(fn) -> float:
