@@ -13,6 +13,7 @@ from se3net.evaluate import evaluate
 from se3net.metrics import point_loss
 from se3net.model import ModelConfig, build_model
 from se3net.train import TrainConfig, TrainingDiverged, fit_normalisation, train
+from sim.shards import DataError
 from tests.conftest import with_fields
 
 
@@ -129,6 +130,10 @@ def test_mismatched_checkpoints_are_refused(tiny_data, tmp_path):
 def test_bad_training_settings_are_refused(tiny_data, tmp_path):
     with pytest.raises(InputError, match="--iters must be positive"):
         _cfg(tiny_data, tmp_path, iters=0)
+    with pytest.raises(InputError, match="--stride must be positive, got 0"):
+        _cfg(tiny_data, tmp_path, stride=0)
+    with pytest.raises(DataError, match="stride 3 does not divide the 32x32 images"):
+        train(_cfg(tiny_data, tmp_path / "s3", stride=3), progress=False)
     with pytest.raises(InputError, match="unknown variant"):
         train(_cfg(tiny_data, tmp_path, variant="huge"), progress=False)
     with pytest.raises(FileNotFoundError, match="nothing to resume"):
