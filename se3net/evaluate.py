@@ -17,12 +17,14 @@ import numpy as np
 import torch
 
 from se3net.checkpoint import DEFAULT_MODEL, load_checkpoint, model_config
-from se3net.data import PushDataset, evenly_spaced, subsample_batch
+from se3net.data import PushDataset, evenly_spaced, paper_noise, subsample_batch
 from se3net.metrics import FlowStats, MaskStats
 from se3net.rollout import rollout
 from sim.shards import portable_path
 
 MULTI_STEPS = 5
+EVAL_NOISE_SEED = 12345
+"""seed of the test data's noise (``--noise``), apart from any training seed"""
 
 
 @dataclass
@@ -45,6 +47,8 @@ class EvalResult:
     multi_step_mse: list[float] = field(default_factory=list)
     """flow MSE (cm^2) after 1..5 fed-back steps"""
     multi_step_no_motion: list[float] = field(default_factory=list)
+    noise: str = "none"
+    """the paper's robustness noise on the test data (``se3net.data.PAPER_NOISE``)"""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -83,12 +87,16 @@ def evaluate_checkpoint(
     device: str = "cpu",
     name: str | None = None,
     split: str = "test",
+    noise: str = "none",
 ) -> EvalResult:
     """Evaluate one checkpoint on the test split of ``data`` (``split="all"``: on every
     episode, for a dataset made to be held out; ``name``: its label, by default
-    ``checkpoint_name``)."""
+    ``checkpoint_name``; ``noise``: the test data under one of the paper's noises, drawn with
+    seed ``EVAL_NOISE_SEED``)."""
     stride = model_config(path).stride
-    one = PushDataset(data, split=split, horizon=1, stride=stride)
+    reading = {"stride": stride, "noise": paper_noise(noise), "seed": EVAL_NOISE_SEED,
+               "device": device}  # fmt: skip
+    one = PushDataset(data, split=split, horizon=1, **reading)
     model, blob = load_checkpoint(path, scenario=one.scenario, device=device)
     flow, masks = FlowStats(), MaskStats()
     idx = evenly_spaced(len(one), max_examples)
@@ -98,7 +106,7 @@ def evaluate_checkpoint(
         flow.add(pred.points, b["points"], b["target"][:, 0], b["target_valid"][:, 0])
         if pred.masks is not None:
             masks.add(pred.masks, b["part"], b["points"], b["target"][:, 0])
-    multi = PushDataset(data, split=split, horizon=MULTI_STEPS, stride=stride)
+    multi = PushDataset(data, split=split, horizon=MULTI_STEPS, **reading)
     dt = multi.scenario.action.dt_control_s
     steps = [FlowStats() for _ in range(MULTI_STEPS)]
     idx = evenly_spaced(len(multi), max_examples // 2)
@@ -122,6 +130,7 @@ def evaluate_checkpoint(
         iou=masks.iou if is_se3 else None,
         multi_step_mse=[s.mse_cm2 for s in steps],
         multi_step_no_motion=[s.no_motion_cm2 for s in steps],
+        noise=noise,
     )
 
 
@@ -157,9 +166,10 @@ def table_markdown(results: list[EvalResult], data: str) -> str:
         )
     n = results[0].examples if results else 0
     which = "All episodes" if results and results[0].split == "all" else "Test split"
+    noisy = f" under `{results[0].noise}` noise" if results and results[0].noise != "none" else ""
     note = (
-        f"\n{which} of `{data}`, {n} one-step examples; flow MSE averages the squared error "
-        "over points whose true flow is non-zero (> 0.1 mm) and that stay visible.\n"
+        f"\n{which} of `{data}`{noisy}, {n} one-step examples; flow MSE averages the squared "
+        "error over points whose true flow is non-zero (> 0.1 mm) and that stay visible.\n"
     )
     return "\n".join([head, rule, *rows]) + "\n" + note
 
@@ -238,17 +248,21 @@ def evaluate(
     *,
     max_examples: int = 2000,
     split: str = "test",
+    noise: str = "none",
+    device: str = "cpu",
 ) -> list[EvalResult]:
-    """Evaluate checkpoints on the test split of ``data`` (``split="all"``: every episode);
-    write ``table.md``, ``eval.json`` and PNGs to ``out_dir``. Paths under the current
-    directory are recorded relative to it."""
+    """Evaluate checkpoints on the test split of ``data`` (``split="all"``: every episode;
+    ``noise``: under one of the paper's noises); write ``table.md``, ``eval.json`` and PNGs to
+    ``out_dir``. Paths under the current directory are recorded relative to it."""
     import json
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     names = checkpoint_names(paths)
     results = [
-        evaluate_checkpoint(p, data, max_examples=max_examples, name=name, split=split)
+        evaluate_checkpoint(
+            p, data, max_examples=max_examples, name=name, split=split, noise=noise, device=device
+        )
         for p, name in zip(paths, names, strict=True)
     ]
     (out_dir / "table.md").write_text(table_markdown(results, portable_path(data)))

@@ -22,14 +22,36 @@ def moving_points(
     return target_valid & ((target - points).norm(dim=1) > NONZERO_FLOW_M)
 
 
+LOSSES = ("moving", "split")
+"""how the point loss is normalised (``point_loss``)"""
+
+
 def point_loss(
-    pred: torch.Tensor, target: torch.Tensor, target_valid: torch.Tensor, points: torch.Tensor
+    pred: torch.Tensor,
+    target: torch.Tensor,
+    target_valid: torch.Tensor,
+    points: torch.Tensor,
+    *,
+    loss: str = "moving",
 ) -> torch.Tensor:
-    """Training loss (cm^2): squared error of predicted vs target points summed over visible
-    targets, divided by the number of points that really move (at least 1), so that the few
-    moving points are not drowned by the static background."""
+    """Training loss (cm^2), on the squared error of predicted vs target points over visible
+    targets.
+
+    ``moving``: summed over every visible target and divided by the number of points that
+    really move (at least 1), so that the few moving points are not drowned by the static
+    background; static points still weigh as much each as moving ones, so a net that cannot
+    tell them apart is paid to shrink every motion. ``split``: the mean over moving points
+    plus the mean over static ones, each normalised by its own count.
+    """
     sq = ((pred - target) ** 2).sum(1) * target_valid
-    return 1e4 * sq.sum() / moving_points(points, target, target_valid).sum().clamp_min(1)
+    moving = moving_points(points, target, target_valid)
+    if loss == "moving":
+        return 1e4 * sq.sum() / moving.sum().clamp_min(1)
+    static = target_valid & ~moving
+    return 1e4 * (
+        (sq * moving).sum() / moving.sum().clamp_min(1)
+        + (sq * static).sum() / static.sum().clamp_min(1)
+    )
 
 
 @dataclass

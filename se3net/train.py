@@ -27,9 +27,9 @@ import torch
 from scenarios import InputError
 from scenarios.config import differences
 from se3net.checkpoint import manifest_hash, read_checkpoint, save_checkpoint
-from se3net.data import PushDataset
+from se3net.data import PushDataset, paper_noise
 from se3net.device import check_device
-from se3net.metrics import FlowStats, point_loss
+from se3net.metrics import LOSSES, FlowStats, point_loss
 from se3net.model import ModelConfig, build_model, sharpening
 from se3net.rollout import rollout
 from sim.shards import DataError, portable_path
@@ -79,6 +79,18 @@ class TrainConfig:
     stride: int = 1
     """the network sees every stride-th pixel of the camera's image in each direction (2: a
     32x32 planning-resolution model of 64x64 data, about 4x fewer pixels a prediction)"""
+    loss: str = "moving"
+    """normalisation of the point loss (``se3net.metrics.LOSSES``): ``moving``, the sum over
+    visible points divided by the moving ones; ``split``, moving and static points' means"""
+    noise: str = "none"
+    """the paper's robustness noise on the training and validation data
+    (a name of ``se3net.data.PAPER_NOISE``), fresh in each pass over the data"""
+    controls: str = "fused"
+    """where the controls enter the network (``ModelConfig.controls``)"""
+    valid_channel: bool = False
+    """an input channel of which pixels hold a point (``ModelConfig.valid_channel``)"""
+    full_res_head: bool = False
+    """a last decoder stage at full resolution (``ModelConfig.full_res_head``)"""
 
     def __post_init__(self) -> None:
         for name in ("iters", "batch", "eval_every", "val_examples", "rollout_steps", "stride"):
@@ -92,11 +104,35 @@ class TrainConfig:
             raise InputError(f"--later-fraction must be in [0, 1), got {self.later_fraction}")
         if self.later_fraction > 0 and isinstance(self.data, str | Path):
             raise InputError("--later-fraction needs more than one --data folder")
+        if self.loss not in LOSSES:
+            raise InputError(f"--loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
+        paper_noise(self.noise)
         check_device(self.device)
+
+    def model_options(self) -> dict[str, Any]:
+        """The architecture settings this run passes to ``ModelConfig``."""
+        return {
+            "controls": self.controls,
+            "valid_channel": self.valid_channel,
+            "full_res_head": self.full_res_head,
+        }
+
+
+# settings added after runs were made, at the values those runs had
+_LATER_SETTINGS = {
+    "stride": 1, "loss": "moving", "noise": "none", "controls": "fused",
+    "valid_channel": False, "full_res_head": False,
+}  # fmt: skip
 
 
 def rollout_loss(
-    model: torch.nn.Module, b: dict[str, torch.Tensor], steps: int, dt: float, **sharpen: Any
+    model: torch.nn.Module,
+    b: dict[str, torch.Tensor],
+    steps: int,
+    dt: float,
+    *,
+    loss: str = "moving",
+    **sharpen: Any,
 ) -> torch.Tensor:
     """Mean point loss over an N-step rollout (``se3net.rollout``: the planner's), each
     prediction fed back as the next input.
@@ -108,7 +144,9 @@ def rollout_loss(
     clouds = rollout(model, b["points"], b["valid"], u[..., :2], u[:, 0, 2:], dt, **sharpen)
     total = 0.0
     for h, x in enumerate(clouds):
-        total = total + point_loss(x, b["target"][:, h], b["target_valid"][:, h], b["points"])
+        total = total + point_loss(
+            x, b["target"][:, h], b["target_valid"][:, h], b["points"], loss=loss
+        )
     return total / steps
 
 
@@ -138,6 +176,7 @@ def validate(
     batch: int,
     device: str,
     rollout_steps: int = 1,
+    loss: str = "moving",
 ) -> dict[str, float]:
     """Loss and flow MSE (one step) on fixed validation examples, and the rollout loss."""
     model.eval()
@@ -147,9 +186,9 @@ def validate(
         b = {k: v.to(device) for k, v in ds.batch(indices[s : s + batch]).items()}
         pred = model(b["points"], b["u"][:, 0], b["valid"]).points
         loss_sum += float(
-            point_loss(pred, b["target"][:, 0], b["target_valid"][:, 0], b["points"])
+            point_loss(pred, b["target"][:, 0], b["target_valid"][:, 0], b["points"], loss=loss)
         ) * len(pred)
-        rollout_sum += float(rollout_loss(model, b, rollout_steps, dt)) * len(pred)
+        rollout_sum += float(rollout_loss(model, b, rollout_steps, dt, loss=loss)) * len(pred)
         n += len(pred)
         stats.add(pred, b["points"], b["target"][:, 0], b["target_valid"][:, 0])
     model.train()
@@ -210,8 +249,12 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
     if resume and not last.exists():
         raise FileNotFoundError(f"nothing to resume: {last} does not exist")
     torch.manual_seed(cfg.seed)
-    ds = PushDataset(cfg.data, split="train", horizon=cfg.rollout_steps, stride=cfg.stride)
-    val = PushDataset(cfg.data, split="val", horizon=cfg.rollout_steps, stride=cfg.stride)
+    data = {
+        "horizon": cfg.rollout_steps, "stride": cfg.stride, "noise": paper_noise(cfg.noise),
+        "seed": cfg.seed, "device": cfg.device,
+    }  # fmt: skip
+    ds = PushDataset(cfg.data, split="train", **data)
+    val = PushDataset(cfg.data, split="val", **data)
     dt = ds.scenario.action.dt_control_s
     data_hash = "+".join(manifest_hash(m) for m in ds.manifests)
     cam = ds.scenario.camera
@@ -222,6 +265,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
         width=cam.width // cfg.stride,
         control_dim=len(ds.control_layout),
         stride=cfg.stride,
+        **cfg.model_options(),
     )
     model = build_model(mcfg).to(cfg.device)
     if cfg.init is not None:
@@ -236,7 +280,8 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
         run_cfg = dict(state["config"])
         if run_cfg.get("horizon") == 1:  # a setting of old runs that changed nothing at 1
             del run_cfg["horizon"]
-        run_cfg.setdefault("stride", 1)  # runs from before the setting ran at full resolution
+        for key, value in _LATER_SETTINGS.items():
+            run_cfg.setdefault(key, value)
         if run_cfg != asdict(cfg):
             diffs = differences(run_cfg, asdict(cfg), old_has="the run has")
             raise InputError(
@@ -295,9 +340,10 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
             group["lr"] = learning_rate(cfg, it)
         # a fine-tuned model keeps the sharpening it ended with (its masks are already binary)
         sigma, gamma = sharpening(cfg.iters if cfg.init else it, cfg.iters, mcfg)
-        b = {k: v.to(cfg.device) for k, v in ds.batch(draw_batch(ds, cfg, rng)).items()}
+        ds.set_epoch(it * cfg.batch // len(ds))  # fresh noise in each pass over the data
+        b = ds.batch(draw_batch(ds, cfg, rng))
         sharpen = {"sigma": sigma, "gamma": gamma, "generator": gen}
-        loss = rollout_loss(model, b, cfg.rollout_steps, dt, **sharpen)
+        loss = rollout_loss(model, b, cfg.rollout_steps, dt, loss=cfg.loss, **sharpen)
         if not torch.isfinite(loss):
             raise TrainingDiverged(
                 f"loss became {float(loss.detach())} at step {it + 1}; {last} keeps the last "
@@ -317,7 +363,9 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
             figures = {
                 "iteration": done,
                 "train_loss": running / n_running,
-                **validate(model, val, val_idx, cfg.batch, cfg.device, cfg.rollout_steps),
+                **validate(
+                    model, val, val_idx, cfg.batch, cfg.device, cfg.rollout_steps, cfg.loss
+                ),
                 "sigma": sigma,
                 "gamma": gamma,
                 "lr": learning_rate(cfg, it),

@@ -78,7 +78,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
         lr=args.lr, seed=args.seed, device=args.device, k=args.k,
         eval_every=args.eval_every, keep_every=args.keep_every,
         rollout_steps=args.rollout_steps, init=args.init, later_fraction=args.later_fraction,
-        stride=args.stride,
+        stride=args.stride, loss=args.loss, noise=args.noise, controls=args.controls,
+        valid_channel=args.valid_channel, full_res_head=args.full_res_head,
     )  # fmt: skip
     try:
         figures = train(cfg, resume=args.resume)
@@ -96,8 +97,9 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     from se3net.evaluate import evaluate, table_markdown
 
     results = evaluate(
-        args.checkpoints, args.data, args.out, max_examples=args.max_examples, split=args.split
-    )
+        args.checkpoints, args.data, args.out, max_examples=args.max_examples, split=args.split,
+        noise=args.noise, device=args.device,
+    )  # fmt: skip
     print(table_markdown(results, args.data))
     print(f"wrote {args.out}/table.md, eval.json and example PNGs")
     return 0
@@ -161,6 +163,14 @@ def _closed_loop_options(s: argparse.ArgumentParser, *, seed_help: str) -> None:
     s.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
     s.add_argument("--max-steps", type=int, default=60, help="control steps per trial")
     s.add_argument("--workers", type=int, default=1, help="processes for the trials")
+
+
+def _noise_option(s: argparse.ArgumentParser, what: str) -> None:
+    s.add_argument(
+        "--noise", default="none",
+        help=f"{what}: none, or a noise of the paper's Table 2 by name (depth-scaled, depth, "
+        "assoc-9, ...; a wrong name lists them)",
+    )  # fmt: skip
 
 
 def _planning_options(s: argparse.ArgumentParser) -> None:
@@ -313,6 +323,24 @@ def _parser() -> argparse.ArgumentParser:
         help="the network sees every N-th pixel of the camera's image in each direction "
         "(2: a 32x32 planning-resolution model of 64x64 data, about 3x faster to plan with)",
     )
+    s.add_argument(
+        "--loss", default="moving",
+        help="point loss: moving (sum over visible points / moving points, as before) or "
+        "split (mean over moving points + mean over static points)",
+    )  # fmt: skip
+    s.add_argument(
+        "--controls", default="fused",
+        help="where the controls enter: fused (the paper's bottleneck) or film (also FiLM "
+        "on every decoder stage)",
+    )  # fmt: skip
+    s.add_argument(
+        "--valid-channel", action="store_true", help="an input channel of which pixels hold a point"
+    )
+    s.add_argument(
+        "--full-res-head", action="store_true",
+        help="end the decoder with a stage at full resolution that sees the input cloud",
+    )  # fmt: skip
+    _noise_option(s, "train and validate under the paper's robustness noise (Table 2)")
     s.add_argument("--resume", action="store_true", help="continue the run in --out exactly")
     s.set_defaults(run=_cmd_train)
 
@@ -327,6 +355,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--out", required=True, help="folder for table.md, eval.json and PNGs")
     s.add_argument("--max-examples", type=int, default=2000, help="test examples to use")
+    _noise_option(s, "test under the paper's robustness noise (Table 2)")
+    s.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or mps")
     s.set_defaults(run=_cmd_eval)
 
     s = sub.add_parser("trials", help="closed-loop trials with success rates")

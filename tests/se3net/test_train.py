@@ -84,9 +84,9 @@ def test_nan_loss_stops_with_a_clear_message_and_keeps_the_last_good_checkpoint(
     real = train_mod.point_loss
     calls = []
 
-    def nan_later(*args):
+    def nan_later(*args, **kwargs):
         calls.append(1)
-        return real(*args) * (float("nan") if len(calls) > 5 else 1.0)
+        return real(*args, **kwargs) * (float("nan") if len(calls) > 5 else 1.0)
 
     monkeypatch.setattr(train_mod, "point_loss", nan_later)
     with pytest.raises(
