@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 
-import cvxpy as cp
 import numpy as np
 import torch
 
@@ -81,6 +80,8 @@ class SQPPlanner(Planner):
     def _problem(self, m: int, n: int) -> tuple:
         """The parametrised QP for m residuals and n action variables (built once)."""
         if (m, n) not in self._problems:
+            import cvxpy as cp  # here, so that nothing but the SQP planner waits for it
+
             J, r0 = cp.Parameter((m, n)), cp.Parameter(m)
             lo, hi = cp.Parameter(n), cp.Parameter(n)
             d = cp.Variable(n)
@@ -105,6 +106,8 @@ class SQPPlanner(Planner):
     ) -> np.ndarray | None:
         """The QP's step d (n,) inside the trust region and the action bounds, or None where
         OSQP gives no solution (an error, its iteration limit, an infeasible status)."""
+        import cvxpy as cp
+
         prob, Jp, rp, lo, hi, d = self._problem(*J.shape)
         Jp.value, rp.value = J, r0
         hi.value = np.minimum(self.bound - u, radius)

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from scenarios import load_scenario
-from se3net.data import IMAGE_KEYS, PushDataset
+from se3net.data import IMAGE_KEYS, PAPER_NOISE, PushDataset
 from sim import PushWorld
 from sim.dataset import DataConfig, generate
 from sim.datastore import split_of
@@ -219,3 +219,27 @@ def test_data_of_other_objects_pools_when_camera_and_actions_agree(tiny_data, tm
     assert len(both) == 2 * 2 * 8
     with pytest.raises(DataError, match="other cameras or actions .*camera.width"):
         PushDataset([tmp_path / "single_box", tiny_data])
+
+
+@pytest.mark.parametrize("noise", ["depth-scaled", "assoc-9"])
+def test_an_items_noise_does_not_depend_on_the_batch_it_is_drawn_in(root, noise):
+    ds = PushDataset(root, split="train", noise=PAPER_NOISE[noise], seed=3)
+    alone = ds.batch([7])
+    among = ds.batch([2, 7, 11])
+    for k in ("points", "target", "target_valid"):
+        assert torch.equal(alone[k][0], among[k][1])
+    clean = PushDataset(root, split="train").batch([7])
+    changed = "points" if noise.startswith("depth") else "target"
+    assert not torch.equal(alone[changed], clean[changed])
+    ds.set_epoch(1)  # a fresh draw in the next pass over the data
+    assert not torch.equal(ds.batch([7])[changed], alone[changed])
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_a_batch_assembled_on_the_gpu_is_the_cpus(root):
+    idx = [0, 5, 9]
+    cpu = PushDataset(root, split="train", horizon=2).batch(idx)
+    gpu = PushDataset(root, split="train", horizon=2, device="cuda").batch(idx)
+    for k, v in cpu.items():
+        assert gpu[k].device.type == "cuda"
+        torch.testing.assert_close(gpu[k].cpu(), v, atol=1e-6, rtol=0)

@@ -310,3 +310,51 @@ def test_checkpoints_of_like_named_runs_get_names_that_tell_them_apart(tmp_path)
         "sb_se3net",
         "iter_002500",
     ]
+
+
+def test_the_split_loss_does_not_grow_with_the_static_background_the_moving_one_does():
+    # one moving point predicted exactly, static points all off by 1 mm: with the moving
+    # normalisation, twice the background costs twice as much (so a net is paid to shrink
+    # every motion); split into means, the background's share stays the same
+    def scene(n_static: int) -> tuple[torch.Tensor, ...]:
+        n = 1 + n_static
+        points = torch.zeros(1, 3, 1, n)
+        target = points.clone()
+        target[0, 0, 0, 0] = 0.02  # the moving point
+        pred = target.clone()
+        pred[0, 2, 0, 1:] += 0.001
+        return pred, target, torch.ones(1, 1, n, dtype=torch.bool), points
+
+    for loss, grows in (("moving", True), ("split", False)):
+        small, big = (float(point_loss(*scene(n), loss=loss)) for n in (50, 100))
+        assert (big > 1.5 * small) == grows
+        assert small > 0
+
+
+def test_runs_record_their_noise_and_options_and_resume_only_with_them(tiny_data, tmp_path):
+    opts = dict(noise="assoc-9", loss="split", controls="film", valid_channel=True,
+                full_res_head=True, variant="flow")  # fmt: skip
+    train(_cfg(tiny_data, tmp_path / "r", **opts), progress=False)
+    blob = read_checkpoint(tmp_path / "r" / "last.pt")
+    assert {k: blob["train_state"]["config"][k] for k in opts} == opts
+    model, _ = load_checkpoint(tmp_path / "r" / "best.pt")
+    assert (model.cfg.controls, model.cfg.valid_channel, model.cfg.full_res_head) == (
+        "film",
+        True,
+        True,
+    )
+    with pytest.raises(InputError, match="noise"):
+        train(_cfg(tiny_data, tmp_path / "r", **{**opts, "noise": "none"}), resume=True,
+              progress=False)  # fmt: skip
+
+
+def test_noisy_validation_is_worse_than_clean_for_the_same_weights(tiny_data, tmp_path):
+    train(_cfg(tiny_data, tmp_path / "c", iters=40, eval_every=40), progress=False)
+    from se3net.evaluate import evaluate_checkpoint
+
+    ck = tmp_path / "c" / "best.pt"
+    clean = evaluate_checkpoint(ck, tiny_data, max_examples=40)
+    noisy = evaluate_checkpoint(ck, tiny_data, max_examples=40, noise="depth")
+    assert noisy.noise == "depth" and clean.noise == "none"
+    assert noisy.no_motion_mse > clean.no_motion_mse  # 1.5 cm of depth noise on the targets
+    assert noisy.flow_mse > clean.flow_mse
