@@ -104,8 +104,8 @@ def rollout_loss(
     Every step's targets are where the *observed* points end up (the associations are those
     of the first frame), so the loss follows the same points the planner's pose fit follows.
     """
-    u = b["u"][:, :steps]
-    clouds = rollout(model, b["points"], b["valid"], u[..., :2], u[:, 0, 2:], dt, **sharpen)
+    actions = b["actions"][:, :steps]
+    clouds = rollout(model, b["points"], b["valid"], actions, b["state"], dt, **sharpen)
     total = 0.0
     for h, x in enumerate(clouds):
         total = total + point_loss(x, b["target"][:, h], b["target_valid"][:, h], b["points"])
