@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.loop import PushConfig, run_push
+from planner.loop import PushConfig, push_scenario, run_push
 from planner.trials import (
     TrialsConfig,
     draw_trial,
@@ -228,7 +228,7 @@ def run_improve(cfg: ImproveConfig, out: str | Path, *, workers: int = 1) -> dic
     from se3net.checkpoint import load_checkpoint
     from sim.datastore import read_manifest, scenario_of
 
-    scenario = load_scenario(cfg.scenario)  # refuse what cannot work before writing anything
+    scenario = push_scenario(cfg.scenario)  # refuse what cannot work before writing anything
     load_checkpoint(cfg.model, scenario=scenario)
     if scenario_of(read_manifest(cfg.data)) != scenario:
         raise InputError(f"{cfg.data} was not generated with scenario {cfg.scenario!r}")

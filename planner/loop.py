@@ -125,6 +125,19 @@ def disturbance(start: np.ndarray, end: np.ndarray) -> float | None:
     return float(np.linalg.norm(end - start, axis=1).max())
 
 
+def push_scenario(name_or_path: str) -> Scenario:
+    """A scenario to plan pushes in: loaded, and refused unless its actions are pusher
+    velocities (the planner's actions; a scenario of joint-velocity controls is for data and
+    training only)."""
+    scenario = load_scenario(name_or_path)
+    if scenario.action.controls != "pusher":
+        raise InputError(
+            f"scenario {scenario.name!r} has joint-velocity controls, not pusher actions: the "
+            "planner plans pushes (vx, vy), so it needs a push scenario (see `se3push scenarios`)"
+        )
+    return scenario
+
+
 def check_reachable(scenario: Scenario, goal: tuple[float, float, float]) -> None:
     """Refuse a goal that is not finite or outside the scenario's goal region, saying where the
     region is."""
@@ -154,7 +167,7 @@ def run_push(
         InputError: a bad goal, object index, planner or model name.
         CheckpointError: a model file that does not exist or does not fit the scenario.
     """
-    scenario = load_scenario(cfg.scenario)
+    scenario = push_scenario(cfg.scenario)
     check_reachable(scenario, cfg.goal)
     world = PushWorld(scenario)
     obs = world.reset(cfg.seed)

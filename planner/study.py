@@ -290,10 +290,10 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
     accuracy figures are cached in ``out/accuracy/<label>.json``.
     """
     from planner.base import PlannerConfig
-    from scenarios import load_scenario
+    from planner.loop import push_scenario
 
     out = Path(out)
-    load_scenario(cfg.scenario)
+    push_scenario(cfg.scenario)
     horizon = PlannerConfig().horizon
     rows = []
     for label, model in parse_models(cfg.models):

@@ -26,7 +26,7 @@ import numpy as np
 from planner.base import ONE_PLANNER_SETTINGS, PlannerConfig
 from planner.cost import CostConfig
 from planner.diagnostics import pooled
-from planner.loop import PushConfig, run_push
+from planner.loop import PushConfig, push_scenario, run_push
 from scenarios import InputError, Scenario, load_scenario
 from scenarios.config import differences
 from sim import PushWorld
@@ -274,7 +274,7 @@ def run_trials(
     if workers < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
     threads = worker_threads(threads)
-    load_scenario(cfg.scenario)  # fail early on an unknown scenario
+    push_scenario(cfg.scenario)  # fail early on an unknown scenario, or one of joint controls
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta_path, log = out / "config.json", out / "trials.jsonl"

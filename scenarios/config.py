@@ -51,6 +51,15 @@ class ArmConfig:
     kp: float = spec("position gain of the joint servos (N m / rad)", gt=0)
     kv: float = spec("velocity gain of the joint servos (N m s / rad)", ge=0)
     controller_rate_hz: float = spec("rate at which the differential-IK QP is solved", gt=0)
+    link_radii_m: tuple[float, float] = spec(
+        "radii of the upper arm's and the forearm's capsules", gt=0, default=(0.018, 0.015)
+    )
+    links_visible: bool = spec(
+        "the depth camera sees the arm's links, each its own part (else it sees only the "
+        "pusher, as the paper's box data showed only the mover); only in a scenario without "
+        "objects",
+        default=False,
+    )
 
 
 @dataclass(frozen=True)
@@ -65,7 +74,10 @@ class CameraConfig:
 
 @dataclass(frozen=True)
 class ObjectsConfig:
-    count: tuple[int, int] = spec("[min, max] number of objects", ge=1, le=3, ordered=True)
+    count: tuple[int, int] = spec(
+        "[min, max] number of objects (0: none, only with 'joints' controls)",
+        ge=0, le=3, ordered=True,
+    )  # fmt: skip
     shapes: tuple[str, ...] = spec(
         "shapes to draw from (sim.shapes)",
         choices=("box", "cylinder", "capsule", "hull", "L", "T"),
@@ -100,11 +112,23 @@ class ObjectsConfig:
     )  # fmt: skip
 
 
+CONTROLS = ("pusher", "joints")
+"""what an action commands: the pusher's planar velocity, or the arm's joint velocities"""
+
+
 @dataclass(frozen=True)
 class ActionConfig:
     max_speed_m_s: float = spec("bound on each of vx, vy of the pusher", gt=0, le=1.0)
     dt_control_s: float = spec("how long one action is held (the paper's 0.15 s)", gt=0)
     physics_dt_s: float = spec("MuJoCo timestep", gt=0, le=0.01)
+    controls: str = spec(
+        "what an action commands: 'pusher' (its planar velocity vx, vy, through the IK "
+        "controller) or 'joints' (the velocities of the arm's 4 joints, the paper's Baxter data)",
+        choices=CONTROLS, default="pusher",
+    )  # fmt: skip
+    max_joint_speed_rad_s: float = spec(
+        "bound on each commanded joint velocity ('joints' controls)", gt=0, default=0.5
+    )
 
 
 @dataclass(frozen=True)
@@ -138,34 +162,37 @@ class Scenario:
     goals: GoalsConfig = spec("goal distribution for trials")
 
 
+def _without_defaults(obj: Any) -> Any:
+    """A (nested) config as a dict, less the fields with a default that hold it."""
+    if not dataclasses.is_dataclass(obj):
+        return obj
+    out = {}
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if f.default is not MISSING and value == f.default:
+            continue
+        out[f.name] = _without_defaults(value)
+    return out
+
+
 def scenario_dict(scenario: Scenario) -> dict[str, Any]:
     """The scenario as JSON types, as manifests and checkpoints store it. Fields with a
     default that hold it are left out, so a scenario that does not use a setting added later
     is stored as it was before the setting existed (same dataset identity, same hash);
     ``scenario_from_dict`` fills them in again."""
-
-    def strip(obj: Any) -> Any:
-        if not dataclasses.is_dataclass(obj):
-            return obj
-        out = {}
-        for f in dataclasses.fields(obj):
-            value = getattr(obj, f.name)
-            if f.default is not MISSING and value == f.default:
-                continue
-            out[f.name] = strip(value)
-        return out
-
-    return json.loads(json.dumps(strip(scenario)))
+    return json.loads(json.dumps(_without_defaults(scenario)))
 
 
 def scenario_fingerprint(scenario: Scenario) -> dict[str, Any]:
     """What a learned model depends on in a scenario: what it sees and how actions act (its
-    objects may differ: a model trained on several scenarios of one fingerprint serves all)."""
+    objects may differ: a model trained on several scenarios of one fingerprint serves all).
+    Settings added later are left out where they hold their default, as in ``scenario_dict``,
+    so the checkpoints written before them still fit."""
     return json.loads(
         json.dumps(
             {
-                "camera": dataclasses.asdict(scenario.camera),
-                "action": dataclasses.asdict(scenario.action),
+                "camera": _without_defaults(scenario.camera),
+                "action": _without_defaults(scenario.action),
             }
         )  # fmt: skip
     )

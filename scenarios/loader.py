@@ -44,14 +44,29 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     except tomllib.TOMLDecodeError as err:
         raise ScenarioError(f"{where}: malformed TOML: {err}") from None
     table.setdefault("name", stem)
-    return _build(Scenario, table, where, "")
+    return _checked(_build(Scenario, table, where, ""), where)
 
 
 def scenario_from_dict(table: dict[str, Any], *, where: str = "stored scenario") -> Scenario:
     """Rebuild (and validate) a scenario from ``scenarios.config.scenario_dict`` output (or
     ``dataclasses.asdict``), e.g. the copy a dataset manifest or a checkpoint keeps; fields
     with a default that it leaves out get their default."""
-    return _build(Scenario, table, where, "")
+    return _checked(_build(Scenario, table, where, ""), where)
+
+
+def _checked(s: Scenario, where: str) -> Scenario:
+    """Refuse combinations of fields that cannot work together."""
+    count = list(s.objects.count)
+    if s.action.controls == "joints" and count != [0, 0]:
+        raise _fail(where, "objects.count", "[0, 0] with action.controls 'joints' (the arm "
+                    "moves alone, as in the paper's Baxter data)", count)  # fmt: skip
+    if s.action.controls == "pusher" and count[0] < 1:
+        raise _fail(where, "objects.count", "at least 1 object with action.controls 'pusher' "
+                    "(pushes need something to push)", count)  # fmt: skip
+    if s.arm.links_visible and count != [0, 0]:
+        raise _fail(where, "objects.count", "[0, 0] with arm.links_visible (the links take "
+                    "the objects' part labels)", count)  # fmt: skip
+    return s
 
 
 def _read(name_or_path: str | Path) -> tuple[str, str, str]:
@@ -160,7 +175,8 @@ def _check_limits(value: Any, meta: Any, where: str, field: str) -> None:
     if "min_len" in meta and len(value) < meta["min_len"]:
         raise _fail(where, field, f"at least {meta['min_len']} entries", value)
     if "choices" in meta:
-        bad = [v for v in value if v not in meta["choices"]]
+        values = (value,) if isinstance(value, str) else value
+        bad = [v for v in values if v not in meta["choices"]]
         if bad:
             raise _fail(where, field, f"entries from {list(meta['choices'])}", bad[0])
     if meta.get("ordered"):

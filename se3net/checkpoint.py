@@ -22,7 +22,8 @@ from scenarios import InputError, Scenario
 from scenarios.config import differences, scenario_dict, scenario_fingerprint
 from se3net.device import check_device
 from se3net.model import ModelConfig, build_model
-from sim.dataset import CONTROL_LAYOUT, code_version
+from sim.controls import control_layout, layout_named
+from sim.dataset import code_version
 from sim.shards import atomic_write_bytes, sha256
 
 CHECKPOINT_FORMAT = 1
@@ -63,7 +64,7 @@ def save_checkpoint(
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
         "scenario": scenario_dict(scenario),
         "fingerprint": scenario_fingerprint(scenario),
-        "control_layout": list(CONTROL_LAYOUT),
+        "control_layout": list(control_layout(scenario).names),
         "data_hash": data_hash,
         "extra": extra or {},
     }
@@ -142,12 +143,18 @@ def load_checkpoint(
     cfg = ModelConfig(**blob["model"])
     if variant is not None and cfg.variant != variant:
         raise CheckpointError(f"checkpoint {path} is a {cfg.variant!r} model, not {variant!r}")
-    if blob["control_layout"] != list(CONTROL_LAYOUT):
+    if layout_named(blob["control_layout"]) is None:
         raise CheckpointError(
-            f"checkpoint {path} uses controls {blob['control_layout']}; "
-            f"this code uses {list(CONTROL_LAYOUT)}"
+            f"checkpoint {path} uses controls {blob['control_layout']}, which this code does "
+            "not know"
         )
     if scenario is not None:
+        ours = list(control_layout(scenario).names)
+        if blob["control_layout"] != ours:
+            raise CheckpointError(
+                f"checkpoint {path} takes controls {blob['control_layout']}; scenario "
+                f"{scenario.name!r} has {ours}"
+            )
         theirs = f"scenario {scenario.name!r} has"
         diffs = differences(
             blob["fingerprint"], scenario_fingerprint(scenario), old_has="model has", new_has=theirs

@@ -19,7 +19,8 @@ from scenarios import InputError, NoiseConfig
 from scenarios.config import differences, scenario_fingerprint
 from se3net.device import check_device
 from sim.camera import DepthCamera
-from sim.dataset import CONTROL_LAYOUT, with_shape_details
+from sim.controls import layout_named
+from sim.dataset import with_shape_details
 from sim.datastore import load_episodes, read_manifest, scenario_of
 from sim.shards import DataError
 
@@ -102,14 +103,20 @@ class PushDataset(Dataset):
     Each item is a dict of tensors:
         ``points`` (3,H,W) float32, the input cloud in the camera frame (m);
         ``valid`` (H,W) bool, input pixels that hit something;
-        ``u`` (h,4) float32, per step: action (vx, vy) and pusher position (x, y) at its start;
+        ``u`` (h,n) float32, per step: the controls (``control_layout``): the action (vx, vy)
+        and the pusher position (x, y) at its start, or the 4 joint velocities;
+        ``actions`` (h,c) float32, the commanded part of ``u``; ``state`` (s,) float32, the
+        rest of ``u`` at the first step (the pusher position; empty for joint velocities), from
+        which a rollout integrates the later steps' (``se3net.rollout``);
         ``target`` (h,3,H,W) float32, where each input point is after 1..h steps;
         ``target_valid`` (h,H,W) bool, input points still visible after 1..h steps;
         ``part`` (H,W) int64, true segmentation (-1 none, 0 static, 1 pusher, 2+ objects),
         for evaluation only; ``episode``, ``t`` ints.
-    """
 
-    control_layout = CONTROL_LAYOUT
+    Attributes:
+        control_layout: the names of the entries of ``u`` (``sim.controls``), as the
+            manifest records them.
+    """
 
     def __init__(
         self,
@@ -144,6 +151,13 @@ class PushDataset(Dataset):
                     f"{r} and {roots[0]} were recorded with other cameras or actions "
                     f"({'; '.join(diffs[:3])}); only such data can be pooled"
                 )
+        self.control_layout = tuple(self.manifest["identity"]["control_layout"])
+        self.layout = layout_named(self.control_layout)
+        if self.layout is None:
+            raise DataError(
+                f"{roots[0]} holds controls {list(self.control_layout)}, which this code does not "
+                "know; regenerate it with `se3push data`"
+            )
         steps = self.manifest["identity"]["steps_per_episode"]
         if not 1 <= horizon <= steps:
             raise DataError(
@@ -228,7 +242,8 @@ class PushDataset(Dataset):
     def batch(self, indices: np.ndarray | list[int]) -> dict[str, Any]:
         """Items ``indices`` stacked into a batch (vectorised; see the class doc for keys).
 
-        ``u`` is (B,h,4), ``target`` (B,h,3,H,W), ``target_valid`` (B,h,H,W)."""
+        ``u`` is (B,h,n), ``actions`` (B,h,c), ``state`` (B,s), ``target`` (B,h,3,H,W),
+        ``target_valid`` (B,h,H,W)."""
         idx = np.asarray(indices, dtype=np.int64)
         e, t = self.items[idx, 0], self.items[idx, 1]
         h = self.horizon
@@ -245,13 +260,19 @@ class PushDataset(Dataset):
                 points, targets, target_valid, valid, self.noise, rngs
             )
         steps = t[:, None] + np.arange(h)
-        u = np.concatenate(
-            [self.a["actions"][e[:, None], steps], self.a["pusher_xy"][e[:, None], steps]], -1
-        )
+        actions = self.a["actions"][e[:, None], steps]
+        key = self.layout.state_key  # the integrated state's record, if the controls have one
+        if key is None:
+            state, u = np.zeros((len(e), 0)), actions
+        else:
+            state = self.a[key][e, t]
+            u = np.concatenate([actions, self.a[key][e[:, None], steps]], -1)
         full = {
             "points": points,
             "valid": valid,
             "u": torch.from_numpy(u).float().to(self.device),
+            "actions": torch.from_numpy(actions).float().to(self.device),
+            "state": torch.from_numpy(state).float().to(self.device),
             "target": targets,
             "target_valid": target_valid,
             "part": part,

@@ -112,8 +112,8 @@ def evaluate_checkpoint(
     idx = evenly_spaced(len(multi), max_examples // 2)
     for s in range(0, len(idx), batch):
         b = {k: v.to(device) for k, v in multi.batch(idx[s : s + batch]).items()}
-        u = b["u"]  # the recorded commands; the pusher positions integrated from them
-        clouds = rollout(model, b["points"], b["valid"], u[..., :2], u[:, 0, 2:], dt)
+        # the recorded commands; the pusher positions (if the controls hold them) integrated
+        clouds = rollout(model, b["points"], b["valid"], b["actions"], b["state"], dt)
         for k, x in enumerate(clouds):
             steps[k].add(x, b["points"], b["target"][:, k], b["target_valid"][:, k])
     is_se3 = masks.n_points > 0

@@ -5,6 +5,8 @@ the planner's.
 Each predicted cloud is fed back as the next input (the paper's multi-step prediction); the
 controls hold the commanded velocity and the pusher position at the step's start, integrated
 from the commands (as the planner forms them: it cannot read future positions from data).
+Joint-velocity controls (``sim.controls``) have no integrated state: their controls are the
+commands alone.
 
 Two savings for planning, where many action sequences start from one observed cloud:
 
@@ -31,11 +33,15 @@ def pusher_path(actions: torch.Tensor, pusher_xy: torch.Tensor, dt: float) -> to
     return pusher_xy.to(actions).reshape(-1, 1, 2) + dt * torch.cumsum(actions, dim=1)
 
 
-def pusher_controls(actions: torch.Tensor, pusher_xy: torch.Tensor, dt: float) -> torch.Tensor:
-    """Controls (B,N,4) of N steps: the commanded velocities (B,N,2) and the pusher position
-    (B or 1, 2) at each step's start (``pusher_path``)."""
-    start = pusher_xy.to(actions).expand(len(actions), 2)[:, None]
-    after = pusher_path(actions[:, :-1], pusher_xy, dt)
+def pusher_controls(actions: torch.Tensor, state: torch.Tensor, dt: float) -> torch.Tensor:
+    """Controls (B,N,c+s) of N steps: the commands (B,N,c) and the state integrated from them
+    at each step's start (``pusher_path``), from ``state`` (B or 1, s) when the first starts:
+    the pusher position (s = 2), or nothing for joint-velocity controls (s = 0: the controls
+    are the commands)."""
+    if state.shape[-1] == 0:
+        return actions
+    start = state.to(actions).expand(len(actions), -1)[:, None]
+    after = pusher_path(actions[:, :-1], state, dt)
     return torch.cat([actions, torch.cat([start, after], 1)], -1)
 
 
@@ -44,7 +50,7 @@ def rollout(
     points: torch.Tensor,
     valid: torch.Tensor,
     actions: torch.Tensor,
-    pusher_xy: torch.Tensor,
+    state: torch.Tensor,
     dt: float,
     *,
     carry_masks: bool = False,
@@ -57,8 +63,10 @@ def rollout(
         points: (B0,3,H,W) the observed cloud(s), camera frame (m); B0 = 1 (one cloud for
             every sequence, encoded once) or B.
         valid: (B0,H,W) bool, pixels that hold a point.
-        actions: (B,N,2) commanded pusher velocities (m/s).
-        pusher_xy: (B0,2) the pusher's position when the first action starts (world frame).
+        actions: (B,N,c) the commands: pusher velocities (m/s, c = 2) or joint velocities
+            (rad/s, c = 4).
+        state: (B0,s) the integrated state when the first action starts: the pusher's
+            position (world frame, s = 2), or nothing for joint velocities (s = 0).
         dt: the control step (s).
         carry_masks: keep the first step's masks for the later steps (SE3-Nets).
         sharpen: ``sigma``, ``gamma``, ``generator`` for training's weight sharpening.
@@ -66,7 +74,7 @@ def rollout(
     Returns:
         N predicted clouds, each (B,3,H,W).
     """
-    u = pusher_controls(actions, pusher_xy, dt)
+    u = pusher_controls(actions, state, dt)
     x, masks, out = points, None, []
     for h in range(actions.shape[1]):
         enc = model.encode(x, valid)

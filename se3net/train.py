@@ -140,8 +140,8 @@ def rollout_loss(
     Every step's targets are where the *observed* points end up (the associations are those
     of the first frame), so the loss follows the same points the planner's pose fit follows.
     """
-    u = b["u"][:, :steps]
-    clouds = rollout(model, b["points"], b["valid"], u[..., :2], u[:, 0, 2:], dt, **sharpen)
+    actions = b["actions"][:, :steps]
+    clouds = rollout(model, b["points"], b["valid"], actions, b["state"], dt, **sharpen)
     total = 0.0
     for h, x in enumerate(clouds):
         total = total + point_loss(
@@ -363,9 +363,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
             figures = {
                 "iteration": done,
                 "train_loss": running / n_running,
-                **validate(
-                    model, val, val_idx, cfg.batch, cfg.device, cfg.rollout_steps, cfg.loss
-                ),
+                **validate(model, val, val_idx, cfg.batch, cfg.device, cfg.rollout_steps, cfg.loss),
                 "sigma": sigma,
                 "gamma": gamma,
                 "lr": learning_rate(cfg, it),

@@ -61,10 +61,14 @@ def _cmd_data(args: argparse.Namespace) -> int:
     )
     manifest = generate(cfg, args.out, workers=args.workers)
     st = summarize(manifest)
+    motion = (
+        f"object moves in {st['object_motion_fraction']:.1%}"
+        if manifest["identity"]["scenario"]["objects"]["count"][1] > 0
+        else f"{st['moving_points_per_example']:.0f} moving points per example"
+    )
     print(
-        f"wrote {args.out}: {st['episodes']} episodes, {st['examples']} examples, "
-        f"object moves in {st['object_motion_fraction']:.1%}; inspect with "
-        f"`se3push data --inspect {args.out}`"
+        f"wrote {args.out}: {st['episodes']} episodes, {st['examples']} examples, {motion}; "
+        f"inspect with `se3push data --inspect {args.out}`"
     )
     return 0
 

@@ -19,6 +19,18 @@ def inspect_data(root: str | Path) -> str:
         f"{m} {f:.0%}" for m, f in sorted(st["mode_fractions"].items(), key=lambda x: -x[1])
     )
     exp, cam = ident["exploration"], ident["scenario"]["camera"]
+    if "joints_moved" in exp:  # joint-velocity exploration (sim.joint_explore)
+        (j0, j1), (f0, f1) = exp["joints_moved"], exp["speed_fraction"]
+        s0, s1 = exp["scene_steps"]
+        policy = (
+            f"scenes of {j0}-{j1} joints at {f0}-{f1} of the speed bound for {s0}-{s1} steps, "
+            f"rest {exp['p_rest']} (per scene)"
+        )
+    else:
+        policy = (
+            f"aimed {exp['p_aimed']}, glance {exp['p_glance']}, free {exp['p_free']}, "
+            f"rest {exp['p_rest']} (per segment)"
+        )
     lines = [
         f"dataset {root}",
         f"  scenario            {ident['scenario']['name']} "
@@ -28,11 +40,11 @@ def inspect_data(root: str | Path) -> str:
         f"in {len(manifest['shards'])} shards",
         f"  code version        {manifest['code_version']} (data format {ident['format']})",
         f"  control layout      {', '.join(ident['control_layout'])}",
-        f"  policy mixture      aimed {exp['p_aimed']}, glance {exp['p_glance']}, "
-        f"free {exp['p_free']}, rest {exp['p_rest']} (per segment)",
+        f"  policy mixture      {policy}",
         f"  steps by mode       {mix}",
         f"  examples (h = 1)    {st['examples']}",
-        f"  object moves        {st['object_motion_fraction']:.1%} of examples (> 1 mm)",
+        f"  object moves        {st['object_motion_fraction']:.1%} of examples (> 1 mm; none "
+        "without objects)",
         f"  moving points       {st['moving_points_per_example']:.0f} per example "
         f"(true flow > {st['moving_threshold_m'] * 1e3:.1f} mm)",
         f"  flow of moving pts  mean {st['mean_flow_m'] * 1e3:.2f} mm, "

@@ -1,6 +1,7 @@
 """Training data: exploration episodes with exact point associations, in shards.
 
-``generate(cfg, out_dir)`` runs episodes of the exploration policy and stores, per frame, what
+``generate(cfg, out_dir)`` runs episodes of the exploration policy (``sim.explore`` for pusher
+controls, ``sim.joint_explore`` for joint-velocity controls) and stores, per frame, what
 targets for any horizon need: the part each pixel sees, each point in its part's frame
 (float16: under 0.13 mm of error for points within 0.5 m of their part's origin) and the parts'
 poses (float64). The cloud at time t and its target after h steps both follow from these by
@@ -27,14 +28,22 @@ import numpy as np
 from scenarios import InputError, Scenario, load_scenario
 from scenarios.config import differences, scenario_dict
 from sim.camera import associated_targets
+from sim.controls import PUSHER_LAYOUT, control_layout
 from sim.explore import MODES, ExplorationConfig, ExplorationPolicy, describe_exploration
+from sim.joint_explore import (
+    JOINT_MODES,
+    JointExploration,
+    JointExplorationConfig,
+    describe_joint_exploration,
+)
 from sim.shapes import DETAILED_SHAPES, MAX_OUTLINE, SHAPES, ObjectSpec
 from sim.shards import DataError, atomic_write_json, sha256, write_shard
-from sim.world import MAX_PARTS, PushWorld
+from sim.world import FIRST_OBJECT_PART, MAX_PARTS, PushWorld
 
 DATA_FORMAT = 1
 MANIFEST = "manifest.json"
-CONTROL_LAYOUT = ("vx_m_s", "vy_m_s", "pusher_x_m", "pusher_y_m")
+CONTROL_LAYOUT = PUSHER_LAYOUT.names
+"""the controls of pusher-velocity data (``sim.controls`` has every layout)"""
 MOVED_M = 1e-3
 """an example shows object motion if some visible object point moves more than this"""
 NONZERO_FLOW_M = 1e-4
@@ -57,7 +66,9 @@ class DataConfig:
     episodes_per_shard: int = 20
     """episodes in one shard file"""
     exploration: ExplorationConfig = field(default_factory=ExplorationConfig)
-    """the exploration policy's mixture"""
+    """the exploration policy's mixture (scenarios of pusher controls)"""
+    joint_exploration: JointExplorationConfig = field(default_factory=JointExplorationConfig)
+    """the joint-velocity exploration's scenes (scenarios of 'joints' controls)"""
 
     def __post_init__(self) -> None:
         for name in ("episodes", "steps_per_episode", "episodes_per_shard"):
@@ -79,6 +90,7 @@ def code_version() -> str:
 def identity(cfg: DataConfig, scenario: Scenario) -> dict[str, Any]:
     """The manifest's record of what the data is (JSON types, as stored); a folder only ever
     holds one identity."""
+    joints = scenario.action.controls == "joints"
     ident = {
         "format": DATA_FORMAT,
         "scenario": scenario_dict(scenario),
@@ -86,8 +98,10 @@ def identity(cfg: DataConfig, scenario: Scenario) -> dict[str, Any]:
         "episodes": cfg.episodes,
         "steps_per_episode": cfg.steps_per_episode,
         "episodes_per_shard": cfg.episodes_per_shard,
-        "exploration": describe_exploration(cfg.exploration),
-        "control_layout": list(CONTROL_LAYOUT),
+        "exploration": describe_joint_exploration(cfg.joint_exploration)
+        if joints
+        else describe_exploration(cfg.exploration),
+        "control_layout": list(control_layout(scenario).names),
     }
     return json.loads(json.dumps(ident))
 
@@ -95,8 +109,9 @@ def identity(cfg: DataConfig, scenario: Scenario) -> dict[str, Any]:
 # --------------------------------------------------------------------------- episodes
 PLANNER_MODE = "planner"
 """the mode of steps recorded from closed-loop planning (``se3push improve``)"""
-STEP_MODES = (*MODES, PLANNER_MODE)
-"""every mode a recorded step can have (``modes`` holds indices into this)"""
+STEP_MODES = (*MODES, PLANNER_MODE, *(m for m in JOINT_MODES if m not in MODES))
+"""every mode a recorded step can have (``modes`` holds indices into this; new modes go at
+the end, so stored indices keep their meaning)"""
 
 
 def with_shape_details(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -151,7 +166,7 @@ class EpisodeRecorder:
             "pusher_xy": np.zeros((T + 1, 2)),
             "joint_pos": np.zeros((T + 1, 4), np.float32),
             "joint_vel": np.zeros((T + 1, 4), np.float32),
-            "actions": np.zeros((T, 2)),
+            "actions": np.zeros((T, len(world.layout.commands))),
             "modes": np.full(T, -1, np.int8),
             "n_objects": np.array(n_obj, np.int8),
             "object_shape": np.array(
@@ -211,8 +226,12 @@ def run_episode(scenario: Scenario, cfg: DataConfig, index: int) -> dict[str, np
     rng = np.random.default_rng([cfg.seed, index])
     world = PushWorld(scenario)
     obs = world.reset(rng)
-    policy = ExplorationPolicy(scenario, world.objects, rng, cfg.exploration)
-    obs = world.teleport_pusher(policy.start_position(obs))
+    if world.joint_controls:
+        policy = JointExploration(world, rng, cfg.joint_exploration)
+        obs = world.set_arm(policy.start_configuration())
+    else:
+        policy = ExplorationPolicy(scenario, world.objects, rng, cfg.exploration)
+        obs = world.teleport_pusher(policy.start_position(obs))
     rec = EpisodeRecorder(world, cfg.steps_per_episode, obs)
     for _ in range(cfg.steps_per_episode):
         action, mode = policy(obs)
@@ -224,10 +243,12 @@ def run_episode(scenario: Scenario, cfg: DataConfig, index: int) -> dict[str, np
 
 
 def episode_stats(ep: dict[str, np.ndarray], T_cam_world: np.ndarray) -> dict[str, Any]:
-    """One-step statistics: examples, examples with object motion, flow of moving points."""
+    """One-step statistics: examples, examples with object motion, flow of moving points (the
+    pusher's and the arm's included)."""
     hist = np.zeros(HIST_BINS + 1, np.int64)
     moved, n_moving, sum_f, sum_f2 = 0, 0, 0.0, 0.0
     length = int(ep["length"])
+    objects = slice(FIRST_OBJECT_PART, FIRST_OBJECT_PART + int(ep["n_objects"]))
     for t in range(length):
         p = ep["points_part"][t].astype(np.float64)
         part = ep["part"][t]
@@ -236,7 +257,7 @@ def episode_stats(ep: dict[str, np.ndarray], T_cam_world: np.ndarray) -> dict[st
             - associated_targets(p, part, ep["T_world_part"][t], T_cam_world),
             axis=0,
         )
-        moved += bool(np.any(f[part >= 2] > MOVED_M))
+        moved += bool(np.any(f[(part >= objects.start) & (part < objects.stop)] > MOVED_M))
         fm = f[f > NONZERO_FLOW_M]
         n_moving += fm.size
         sum_f += float(fm.sum())

@@ -3,7 +3,8 @@
 The model is generated from the scenario and the objects drawn for one episode; nothing is
 hand-edited per case. Geom group 0 holds what the depth camera sees (table, pusher, objects);
 the arm's links are in group 1, drawn by the visualiser but hidden from the camera, as the
-paper's box data showed only the mover and the objects.
+paper's box data showed only the mover and the objects, unless the scenario has
+``arm.links_visible`` (the paper's Baxter data: the arm's links in view).
 
 Collision bits: the table collides with objects; the pusher collides with objects only (it
 floats a few mm above the table); the arm's links collide with nothing.
@@ -17,6 +18,9 @@ from sim.shapes import ObjectSpec, mjcf_numbers
 ARM_JOINTS = ("yaw", "pitch1", "pitch2", "pitch3")
 PUSHER_BODY = "pusher"
 PUSHER_SITE = "pusher_tip"
+ARM_LINK_BODIES = ("arm_base", "link1", "link2")
+"""the arm's bodies before the pusher, from the base: each turns with one joint (base yaw,
+pitch 1, pitch 2; the pusher body turns with pitch 3)"""
 CAMERA_GROUP = 0
 ARM_GROUP = 1
 
@@ -31,6 +35,7 @@ def build_mjcf(scenario: Scenario, objects: list[ObjectSpec]) -> str:
     """
     t, a = scenario.table, scenario.arm
     l1, l2 = a.link_lengths_m
+    r1, r2 = a.link_radii_m
     lp = a.pusher_length_m
     gains = f'kp="{a.kp:.6g}" kv="{a.kv:.6g}"'
     joints = [
@@ -40,7 +45,8 @@ def build_mjcf(scenario: Scenario, objects: list[ObjectSpec]) -> str:
             ARM_JOINTS, ("0 0 1", "0 1 0", "0 1 0", "0 1 0"), a.joint_limits_rad, strict=True
         )
     ]
-    link = f'contype="0" conaffinity="0" group="{ARM_GROUP}" rgba="0.55 0.57 0.6 1"'
+    group = CAMERA_GROUP if a.links_visible else ARM_GROUP
+    link = f'contype="0" conaffinity="0" group="{group}" rgba="0.55 0.57 0.6 1"'
     table_size = mjcf_numbers(t.size_m[0] / 2, t.size_m[1] / 2, t.thickness_m / 2)
     bodies, assets = [], []
     for i, obj in enumerate(objects):
@@ -62,16 +68,16 @@ def build_mjcf(scenario: Scenario, objects: list[ObjectSpec]) -> str:
     <geom name="table" type="box" size="{table_size}"
           pos="0 0 {-t.thickness_m / 2:.6g}" friction="{t.friction:.6g} 0.005 0.0001"
           contype="1" conaffinity="1" group="{CAMERA_GROUP}" rgba="0.75 0.7 0.6 1"/>
-    <body name="arm_base" pos="{mjcf_numbers(*a.base_xy_m, 0.0)}">
+    <body name="{ARM_LINK_BODIES[0]}" pos="{mjcf_numbers(*a.base_xy_m, 0.0)}">
       {joints[0]}
       <geom type="cylinder" fromto="0 0 0 0 0 {a.shoulder_height_m:.6g}" size="0.03" mass="1"
             {link}/>
-      <body name="link1" pos="0 0 {a.shoulder_height_m:.6g}" gravcomp="1">
+      <body name="{ARM_LINK_BODIES[1]}" pos="0 0 {a.shoulder_height_m:.6g}" gravcomp="1">
         {joints[1]}
-        <geom type="capsule" fromto="0 0 0 {l1:.6g} 0 0" size="0.018" mass="0.3" {link}/>
-        <body name="link2" pos="{l1:.6g} 0 0" gravcomp="1">
+        <geom type="capsule" fromto="0 0 0 {l1:.6g} 0 0" size="{r1:.6g}" mass="0.3" {link}/>
+        <body name="{ARM_LINK_BODIES[2]}" pos="{l1:.6g} 0 0" gravcomp="1">
           {joints[2]}
-          <geom type="capsule" fromto="0 0 0 {l2:.6g} 0 0" size="0.015" mass="0.2" {link}/>
+          <geom type="capsule" fromto="0 0 0 {l2:.6g} 0 0" size="{r2:.6g}" mass="0.2" {link}/>
           <body name="{PUSHER_BODY}" pos="{l2:.6g} 0 0" gravcomp="1">
             {joints[3]}
             <geom name="pusher" type="cylinder" fromto="0 0 0 0 0 {-lp:.6g}"

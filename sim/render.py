@@ -10,7 +10,8 @@ import numpy as np
 from scenarios import load_scenario
 from sim.camera import DepthCamera
 from sim.dataset import MOVED_M
-from sim.world import MAX_PARTS, Observation, PushWorld
+from sim.joint_explore import JointExploration
+from sim.world import MAX_PARTS, Observation, PushWorld, part_names
 
 
 def push_toward_object(world: PushWorld, obs: Observation, rng: np.random.Generator) -> np.ndarray:
@@ -40,19 +41,24 @@ def draw_example(
     part: np.ndarray,
     flow: np.ndarray,
     title: str,
+    *,
+    names: list[str] | None = None,
 ) -> None:
     """Depth, segmentation and true flow of one example on three axes.
 
     Args:
         points: (3,H,W) input cloud, camera frame; part: (H,W) part labels (-1 none);
         flow: (3,H,W) true flow (target - input), metres.
+        names: the name of each part label 0, 1, ... (``sim.world.part_names``; default: the
+            static world, the pusher and objects).
     """
     plt = pyplot()
     valid = part >= 0
     im = axes[0].imshow(np.where(valid, points[2], np.nan), cmap="viridis")
     fig.colorbar(im, ax=axes[0], label="depth (m)")
     axes[0].set_title(title)
-    labels = ["none", "static", "pusher"] + [f"object {i}" for i in range(MAX_PARTS - 2)]
+    default = ["static", "pusher"] + [f"object {i}" for i in range(MAX_PARTS - 2)]
+    labels = ["none", *(names or default)]
     cmap = plt.get_cmap("tab10", len(labels))
     im = axes[1].imshow(part.astype(int) + 1, cmap=cmap, vmin=-0.5, vmax=len(labels) - 0.5)
     cb = fig.colorbar(im, ax=axes[1], ticks=range(len(labels)))
@@ -85,7 +91,9 @@ def save_figure(fig: Any, out: str | Path) -> None:
 
 def render_scene(scenario: str, seed: int, out: str | Path, *, max_steps: int = 40) -> dict:
     """Reset ``scenario`` with ``seed``, push toward an object until it moves (at most
-    ``max_steps`` steps), and write depth, segmentation and that step's flow to ``out``.
+    ``max_steps`` steps), and write depth, segmentation and that step's flow to ``out``. With
+    joint-velocity controls, the arm starts in a random pose and the step shown is the first
+    of a scene of the data's exploration (``sim.joint_explore``).
 
     Returns:
         a summary: steps taken, pixels per part, max flow (m) of the shown step.
@@ -93,38 +101,49 @@ def render_scene(scenario: str, seed: int, out: str | Path, *, max_steps: int = 
     world = PushWorld(load_scenario(scenario))
     rng = np.random.default_rng(seed)
     before = after = world.reset(rng)
-    for step in range(1, max_steps + 1):  # noqa: B007 (step is reported below)
-        before, after = after, world.step(push_toward_object(world, after, rng))
-        moved = np.linalg.norm(after.object_poses[:, :2] - before.object_poses[:, :2], axis=1)
-        if after.done or moved.max() > MOVED_M:
-            break
+    if world.joint_controls:  # the arm moves at once
+        policy = JointExploration(world, rng)
+        before = world.set_arm(policy.start_configuration())
+        after, step = world.step(policy(before)[0]), 1
+    else:
+        for step in range(1, max_steps + 1):  # noqa: B007 (step is reported below)
+            before, after = after, world.step(push_toward_object(world, after, rng))
+            moved = np.linalg.norm(after.object_poses[:, :2] - before.object_poses[:, :2], axis=1)
+            if after.done or moved.max() > MOVED_M:
+                break
     flow = world.targets(before, after) - before.points_cam
     fig, axes = pyplot().subplots(1, 3, figsize=(13, 4.4))
     title = f"{scenario} seed {seed}, step {step}"
-    draw_example(fig, axes, world.camera, before.points_cam, before.part, flow, title)
+    names = part_names(world.scenario, len(world.objects))
+    draw_example(fig, axes, world.camera, before.points_cam, before.part, flow, title, names=names)
     save_figure(fig, out)
-    names = ["none", "static", "pusher"] + [f"object {i}" for i in range(len(world.objects))]
-    counts = {name: int((before.part == k - 1).sum()) for k, name in enumerate(names)}
+    counts = {name: int((before.part == k - 1).sum()) for k, name in enumerate(["none", *names])}
     valid_flow = np.linalg.norm(flow, axis=0)[before.valid]
     return {"steps": step, "pixels": counts, "max_flow_m": float(valid_flow.max())}
 
 
 def dataset_examples_png(root: str | Path, out: str | Path, *, n: int = 4, seed: int = 0) -> list:
-    """Write ``n`` examples of a dataset (drawn among those where an object moves) as rows of
-    depth, segmentation and true one-step flow. Returns the (episode, t) shown."""
+    """Write ``n`` examples of a dataset (drawn among those where an object moves; without
+    objects, where a part moves) as rows of depth, segmentation and true one-step flow.
+    Returns the (episode, t) shown."""
     from sim.datastore import frame_cloud, load_episodes, read_manifest, scenario_of
 
-    camera = DepthCamera(scenario_of(read_manifest(root)).camera)
+    scenario = scenario_of(read_manifest(root))
+    camera = DepthCamera(scenario.camera)
     eps = load_episodes(root, verify=False)
     a = eps.arrays
+
+    def moves(e: int, t: int) -> bool:
+        if a["n_objects"][e] == 0:  # the arm alone: any entry of a part's pose
+            return np.abs(a["T_world_part"][e, t + 1] - a["T_world_part"][e, t]).max() > MOVED_M
+        poses = a["object_poses"][e]
+        return np.linalg.norm(poses[t + 1, :, :2] - poses[t, :, :2], axis=1).max() > MOVED_M
+
     moving = [
         (e, t)
         for e in range(min(len(eps.index), 60))
         for t in range(int(a["length"][e]))
-        if np.linalg.norm(
-            a["object_poses"][e, t + 1, :, :2] - a["object_poses"][e, t, :, :2], axis=1
-        ).max()
-        > MOVED_M
+        if moves(e, t)
     ]
     rng = np.random.default_rng(seed)
     picks = [
@@ -136,8 +155,8 @@ def dataset_examples_png(root: str | Path, out: str | Path, *, n: int = 4, seed:
     for row, (e, t) in zip(axes, picks, strict=False):
         points = frame_cloud(a, e, t, camera.T_cam_world)
         flow = frame_cloud(a, e, t, camera.T_cam_world, at=t + 1) - points
-        draw_example(
-            fig, row, camera, points, a["part"][e, t], flow, f"episode {int(eps.index[e])}, t = {t}"
-        )
+        title = f"episode {int(eps.index[e])}, t = {t}"
+        names = part_names(scenario, scenario.objects.count[1])
+        draw_example(fig, row, camera, points, a["part"][e, t], flow, title, names=names)
     save_figure(fig, out)
     return [(int(eps.index[e]), t) for e, t in picks]

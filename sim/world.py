@@ -1,12 +1,17 @@
 """The push world: a MuJoCo table top, an arm with a pusher, 1-3 free objects, a depth camera.
 
-``reset(seed)`` draws objects from the scenario and builds the model; ``step(action)`` holds a
-planar pusher velocity ``(vx, vy)`` for ``dt_control_s`` through the differential-IK
-controller and returns the next :class:`Observation`.
+``reset(seed)`` draws objects from the scenario and builds the model; ``step(action)`` holds
+an action for ``dt_control_s`` and returns the next :class:`Observation`. An action is, by the
+scenario's ``action.controls`` (``sim.controls``), a planar pusher velocity ``(vx, vy)``
+turned into joint motion by the differential-IK controller, or the velocities of the arm's 4
+joints, integrated into the joint servos' targets.
 
 Parts: every pixel is labelled with the rigid part it sees: ``-1`` nothing, ``0`` the static
-world (table), ``1`` the pusher, ``2 + i`` object ``i``. ``T_world_part (P,4,4)`` holds the
-parts' poses, so that targets after h steps follow exactly from the stored body-frame points.
+world (table), ``1`` the pusher, ``2 + i`` object ``i``; with ``arm.links_visible`` (a
+scenario without objects) ``2 + j`` the arm's link j (``ARM_LINK_BODIES``: the base, which
+turns with the yaw joint, the upper arm and the forearm; the pusher ends the chain). ``T_world_part
+(P,4,4)`` holds the parts' poses, so that targets after h steps follow exactly from the stored
+body-frame points.
 """
 
 from __future__ import annotations
@@ -20,7 +25,15 @@ import numpy as np
 from scenarios import InputError, Scenario
 from sim.camera import DepthCamera, associated_targets, invert, transform_by_part
 from sim.controller import PusherIK
-from sim.mjcf import ARM_JOINTS, PUSHER_BODY, PUSHER_SITE, build_mjcf, object_body
+from sim.controls import control_layout
+from sim.mjcf import (
+    ARM_JOINTS,
+    ARM_LINK_BODIES,
+    PUSHER_BODY,
+    PUSHER_SITE,
+    build_mjcf,
+    object_body,
+)
 from sim.shapes import HULL_POINTS, ObjectSpec, hull_outline
 
 PART_NONE, PART_STATIC, PART_PUSHER = -1, 0, 1
@@ -30,9 +43,20 @@ SETTLE_S = 0.1
 MAX_SPEED_STABLE_M_S = 5.0
 
 
+LINK_NAMES = ("arm base", "upper arm", "forearm")
+"""the arm's links (``ARM_LINK_BODIES``) as pictures name them"""
+
+
 def object_part(i: int) -> int:
     """The part label (``Observation.part``, the dataset's ``part``) of object i's pixels."""
     return FIRST_OBJECT_PART + i
+
+
+def part_names(scenario: Scenario, n_objects: int) -> list[str]:
+    """The name of each part label 0, 1, ... of a world of ``scenario`` with ``n_objects``
+    objects (see the module doc)."""
+    links = list(LINK_NAMES) if scenario.arm.links_visible else []
+    return ["static", "pusher", *(f"object {i}" for i in range(n_objects)), *links]
 
 
 class ActionError(InputError):
@@ -123,6 +147,9 @@ class PushWorld:
         self.ctrl_every = max(
             1, round(1.0 / (scenario.arm.controller_rate_hz * scenario.action.physics_dt_s))
         )
+        self.layout = control_layout(scenario)
+        self.joint_controls = scenario.action.controls == "joints"
+        """actions are joint velocities (else planar pusher velocities)"""
         self.model: mujoco.MjModel | None = None
         self.data: mujoco.MjData | None = None
         self.objects: list[ObjectSpec] = []
@@ -206,17 +233,24 @@ class PushWorld:
         joint_ids = np.array([m.joint(n).id for n in ARM_JOINTS])
         self._arm_qpos = m.jnt_qposadr[joint_ids]
         self._arm_dof = m.jnt_dofadr[joint_ids]
+        links = ARM_LINK_BODIES if s.arm.links_visible else ()
         self._part_bodies = np.array(
-            [0, m.body(PUSHER_BODY).id] + [m.body(object_body(i)).id for i in range(len(poses))]
+            [0, m.body(PUSHER_BODY).id]
+            + [m.body(object_body(i)).id for i in range(len(poses))]
+            + [m.body(name).id for name in links]
         )
-        # part of every body: static 0, pusher 1, object i 2+i; arm links -> pusher (hidden anyway)
+        # part of every body: static 0, pusher 1, object i 2+i, then the visible links; hidden
+        # links -> static (the camera never sees them)
         self._body_part = np.zeros(m.nbody, np.int8)
         self._body_part[self._part_bodies[1:]] = np.arange(1, len(self._part_bodies))
         self._geom_part = self._body_part[m.geom_bodyid]
+        self._joint_limits = np.array(s.arm.joint_limits_rad).T  # (2,4) lower, upper
         obj_joints = [m.joint(object_body(i)).id for i in range(len(poses))]
         self._obj_qpos = m.jnt_qposadr[obj_joints]
         self._obj_dof = m.jnt_dofadr[obj_joints]
         self._pusher_site = m.site(PUSHER_SITE).id
+        self._elbow_body, self._wrist_body = m.body(ARM_LINK_BODIES[2]).id, m.body(PUSHER_BODY).id
+        self._scratch: mujoco.MjData | None = None
         for adr, (x, y, yaw), obj in zip(self._obj_qpos, poses, self.objects, strict=True):
             d.qpos[adr : adr + 7] = [
                 x,
@@ -244,7 +278,8 @@ class PushWorld:
         self._done, self._reason = False, ""
         mujoco.mj_forward(m, d)
         if settle:
-            self._advance(np.zeros(2), round(SETTLE_S / s.action.physics_dt_s))
+            rest = np.zeros(len(self.layout.commands))
+            self._advance(rest, round(SETTLE_S / s.action.physics_dt_s))
         d.time = 0.0
 
     def teleport_pusher(self, xy_m: np.ndarray) -> Observation:
@@ -263,7 +298,14 @@ class PushWorld:
             local = np.array([[c, s], [-s, c]]) @ (xy - [x, y])
             if obj.distance_to_footprint_m(local) < self.scenario.arm.pusher_radius_m:
                 raise ValueError(f"pusher position {xy.tolist()} overlaps an object at {x, y}")
-        q = planar_arm_ik(self.scenario, xy)
+        return self.set_arm(planar_arm_ik(self.scenario, xy))
+
+    def set_arm(self, q: np.ndarray) -> Observation:
+        """Put the arm, at rest, in the joint configuration ``q`` (4,) (rad), its servos holding
+        it there; nothing else is touched. Meant for the start of an episode."""
+        if self.model is None:
+            raise EpisodeEnded("no episode yet: call reset(seed) first")
+        q = np.asarray(q, dtype=float)
         self.data.qpos[self._arm_qpos] = q
         self.data.qvel[self._arm_dof] = 0.0
         self._q_ref = q.copy()
@@ -271,26 +313,47 @@ class PushWorld:
         mujoco.mj_forward(self.model, self.data)
         return self.observe()
 
+    def arm_points(self, q: np.ndarray) -> np.ndarray:
+        """(3,3) where the elbow (the forearm's joint), the wrist (the pusher's joint) and the
+        pusher's tip would be, world frame, with the arm in configuration ``q`` (4,): MuJoCo's
+        own forward kinematics, on a scratch copy of the state (the world is not touched). The
+        links are straight between these points, so their lowest points are among them."""
+        if self._scratch is None:
+            self._scratch = mujoco.MjData(self.model)
+        d = self._scratch
+        d.qpos[self._arm_qpos] = q
+        mujoco.mj_kinematics(self.model, d)
+        return np.stack(
+            [d.xpos[self._elbow_body], d.xpos[self._wrist_body], d.site_xpos[self._pusher_site]]
+        )
+
     # ------------------------------------------------------------------- step
     def check_action(self, action: np.ndarray) -> np.ndarray:
-        """The action as a float array (2,), or an :class:`ActionError` saying what is wrong."""
+        """The action as a float array (2,) (a pusher velocity) or (4,) (joint velocities, in a
+        scenario with 'joints' controls), or an :class:`ActionError` saying what is wrong."""
         a = np.asarray(action, dtype=float)
-        bound = self.scenario.action.max_speed_m_s
-        if a.shape != (2,):
+        if self.joint_controls:
+            what, shape, unit = "the velocities of the arm's 4 joints", (4,), "rad/s"
+            bound, field = self.scenario.action.max_joint_speed_rad_s, "max_joint_speed_rad_s"
+        else:
+            what, shape, unit = "a planar pusher velocity (vx, vy)", (2,), "m/s"
+            bound, field = self.scenario.action.max_speed_m_s, "max_speed_m_s"
+        if a.shape != shape:
             raise ActionError(
-                f"an action is a planar pusher velocity (vx, vy); got shape {a.shape}"
+                f"an action of scenario {self.scenario.name} is {what}; got shape {a.shape}"
             )
         if not np.all(np.isfinite(a)):
             raise ActionError(f"action {a.tolist()} is not finite")
         if np.any(np.abs(a) > bound + 1e-9):
             raise ActionError(
-                f"action {a.tolist()} m/s is outside the bounds ±{bound} m/s per axis "
-                f"(scenario {self.scenario.name}: action.max_speed_m_s); clip it first"
+                f"action {a.tolist()} {unit} is outside the bounds ±{bound} {unit} per entry "
+                f"(scenario {self.scenario.name}: action.{field}); clip it first"
             )
         return a
 
     def step(self, action: np.ndarray) -> Observation:
-        """Hold the pusher velocity ``action`` (vx, vy; m/s, world frame) for one control step.
+        """Hold ``action`` for one control step: the pusher velocity (vx, vy; m/s, world frame),
+        or with 'joints' controls the joint velocities (4,) (rad/s).
 
         Raises:
             ActionError: the action is malformed, not finite or out of bounds.
@@ -309,7 +372,7 @@ class PushWorld:
             raise EpisodeEnded(f"the episode ended ({self._reason}); call reset(seed)")
         self._advance(a, self.n_substeps)
         self._check_end()
-        T = self.part_poses()[FIRST_OBJECT_PART:]
+        T = self.part_poses()[FIRST_OBJECT_PART : FIRST_OBJECT_PART + len(self.objects)]
         return np.column_stack([T[:, 0, 3], T[:, 1, 3], np.arctan2(T[:, 1, 0], T[:, 0, 0])])
 
     @property
@@ -351,15 +414,24 @@ class PushWorld:
         other.restore(self.snapshot())
         return other
 
-    def _advance(self, v_xy: np.ndarray, n_steps: int) -> None:
+    def _advance(self, action: np.ndarray, n_steps: int) -> None:
         m, d = self.model, self.data
         for i in range(n_steps):
             if i % self.ctrl_every == 0:
-                self._q_ref = self.controller.servo_targets(d, self._q_ref, v_xy)
+                if self.joint_controls:
+                    self._q_ref = self._joint_servo_targets(action)
+                else:
+                    self._q_ref = self.controller.servo_targets(d, self._q_ref, action)
                 d.ctrl[:] = self._q_ref
             mujoco.mj_step(m, d)
         self.qp_failures = self.controller.failures
         mujoco.mj_kinematics(m, d)
+
+    def _joint_servo_targets(self, qd: np.ndarray) -> np.ndarray:
+        """The servo targets after one controller tick of commanded joint velocities ``qd``
+        (4,): integrated from the last targets, and stopped at the joint limits."""
+        lo, hi = self._joint_limits
+        return np.clip(self._q_ref + qd * self.controller.dt, lo, hi)
 
     def _check_end(self) -> None:
         d = self.data
@@ -381,7 +453,8 @@ class PushWorld:
 
     # ---------------------------------------------------------------- observe
     def part_poses(self) -> np.ndarray:
-        """(P,4,4) current poses of the parts (static, pusher, objects) in the world frame."""
+        """(P,4,4) current poses of the parts (static, pusher, objects or visible links) in the
+        world frame."""
         d = self.data
         T = np.tile(np.eye(4), (len(self._part_bodies), 1, 1))
         T[:, :3, :3] = d.xmat[self._part_bodies].reshape(-1, 3, 3)
@@ -400,8 +473,8 @@ class PushWorld:
         points_part = transform_by_part(frame.points_cam, part, T_part_cam)
         poses = np.array(
             [
-                [*T_world_part[k, :2, 3], yaw_of(T_world_part[k, :3, :3])]
-                for k in range(2, len(T_world_part))
+                [*T_world_part[object_part(i), :2, 3], yaw_of(T_world_part[object_part(i), :3, :3])]
+                for i in range(len(self.objects))
             ]
         ).reshape(-1, 3)
         return Observation(
