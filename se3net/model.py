@@ -320,7 +320,8 @@ class _CloudNet(nn.Module):
         """The cloud's part of a prediction, for :meth:`predict` (once for many controls)."""
         x = self.norm.points(points, valid)
         if self.cfg.valid_channel:
-            x = torch.cat([x, valid[:, None].to(x)], 1)
+            # a rollout feeds back B predicted clouds beside the one observed validity
+            x = torch.cat([x, valid[:, None].to(x).expand(len(x), -1, -1, -1)], 1)
         return self.backbone.encode(x)
 
 

@@ -181,3 +181,25 @@ def test_the_validity_channel_tells_an_empty_pixel_from_a_point_at_the_mean():
 def test_unknown_control_entries_are_refused():
     with pytest.raises(InputError, match="controls must be one of fused, film"):
         ModelConfig(controls="tiled")
+
+
+@pytest.mark.parametrize("variant", ["se3net", "flow"])
+def test_a_rollout_from_one_observed_cloud_is_that_of_the_cloud_repeated(variant):
+    # the planner's rollout: one observed cloud and its validity, B action sequences, the
+    # predicted clouds fed back (batch B) beside the observed validity (batch 1)
+    from se3net.rollout import rollout
+
+    torch.manual_seed(0)
+    model = build_model(ModelConfig(variant=variant, height=32, width=32, **STRONG)).eval()
+    for p in model.parameters():
+        p.data.add_(0.05 * torch.randn_like(p))
+    pts, valid = _cloud(1, 32, 32)
+    actions, pusher = 0.05 * torch.randn(4, 3, 2), torch.tensor([[0.1, -0.05]])
+    with torch.no_grad():
+        once = rollout(model, pts, valid, actions, pusher, 0.15)
+        each = rollout(
+            model, pts.expand(4, -1, -1, -1), valid.expand(4, -1, -1), actions,
+            pusher.expand(4, -1), 0.15,
+        )  # fmt: skip
+    for a, b in zip(once, each, strict=True):
+        torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
