@@ -317,9 +317,10 @@ def bench_sampling(*, repeats: int, pushes: int = 3, steps: int = 16) -> dict:
     from tqdm import tqdm
 
     from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
-    from planner.trials import draw_trial, torch_threads
+    from planner.trials import draw_trial
     from scenarios import load_scenario
     from sim import PushWorld
+    from sim.jobs import torch_threads
 
     scenario = load_scenario("single_box")
     dyn = make_dynamics("se3net", scenario)

@@ -59,7 +59,7 @@ def _cmd_data(args: argparse.Namespace) -> int:
         steps_per_episode=args.steps_per_episode,
         seed=args.seed,
     )
-    manifest = generate(cfg, args.out, workers=args.workers)
+    manifest = generate(cfg, args.out, workers=args.workers, **_backend(args))
     st = summarize(manifest)
     motion = (
         f"object moves in {st['object_motion_fraction']:.1%}"
@@ -115,7 +115,7 @@ def _cmd_trials(args: argparse.Namespace) -> int:
     cfg = TrialsConfig(scenario=args.scenario, n=args.n, model=args.model, planner=args.planner,
                        seed=args.seed, max_steps=args.max_steps,
                        **_planning_configs(args))  # fmt: skip
-    s = run_trials(cfg, args.out, workers=args.workers, threads=args.threads)
+    s = run_trials(cfg, args.out, workers=args.workers, threads=args.threads, **_backend(args))
     lo, hi = s["success_tight_ci95"]
     lo2, hi2 = s["success_loose_ci95"]
     print(
@@ -167,6 +167,25 @@ def _closed_loop_options(s: argparse.ArgumentParser, *, seed_help: str) -> None:
     s.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
     s.add_argument("--max-steps", type=int, default=60, help="control steps per trial")
     s.add_argument("--workers", type=int, default=1, help="processes for the trials")
+
+
+def _backend_options(s: argparse.ArgumentParser) -> None:
+    """Where the independent jobs of a command run (``sim.jobs``)."""
+    s.add_argument(
+        "--backend", choices=["local", "ray"], default="local",
+        help="local: a process pool on this machine; ray: Ray workers (pip install -e "
+        "\".[scale]\"); the same records and bytes either way",
+    )  # fmt: skip
+    s.add_argument(
+        "--address", default=None,
+        help="ray: the address of an existing Ray cluster (default: start one here with "
+        "--workers CPUs); its nodes must see the same files",
+    )  # fmt: skip
+
+
+def _backend(args: argparse.Namespace) -> dict:
+    """``backend`` and ``address`` from :func:`_backend_options`' flags."""
+    return {"backend": args.backend, "address": args.address}
 
 
 def _noise_option(s: argparse.ArgumentParser, what: str) -> None:
@@ -237,7 +256,7 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         rollout_steps=args.rollout_steps, lr=args.lr, planner=args.planner,
         max_steps=args.max_steps, visited_fraction=args.visited_fraction,
     )  # fmt: skip
-    run_improve(cfg, args.out, workers=args.workers)
+    run_improve(cfg, args.out, workers=args.workers, **_backend(args))
     print((Path(args.out) / "improve.md").read_text())
     print(f"wrote {args.out}/improve.md, improve.json, improve.png and round_*/")
     return 0
@@ -286,6 +305,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--steps-per-episode", type=int, default=20, help="actions per episode")
     s.add_argument("--inspect", metavar="DIR", help="print a dataset's manifest and statistics")
+    _backend_options(s)
     s.set_defaults(run=_cmd_data)
 
     s = sub.add_parser("train", help="train an SE3-Net or a baseline on a dataset")
@@ -376,6 +396,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="torch threads per worker (default 1: the same records for any "
                    "--workers)")  # fmt: skip
     s.add_argument("--out", required=True, help="folder for trials.jsonl, summary.json, paths.png")
+    _backend_options(s)
     s.set_defaults(run=_cmd_trials)
 
     s = sub.add_parser("study", help="how model accuracy relates to closed-loop success")
@@ -415,6 +436,7 @@ def _parser() -> argparse.ArgumentParser:
         help="share of each fine-tuning batch drawn from the planner-visited data",
     )
     s.add_argument("--out", required=True, help="folder of the rounds (resumable)")
+    _backend_options(s)
     s.set_defaults(run=_cmd_improve)
 
     s = sub.add_parser("bench", help="time the hot paths (medians over repeats)")
@@ -516,7 +538,8 @@ def _cmd_plan_push(args: argparse.Namespace) -> int:
     if args.threads is None:
         result = run_push(cfg, on_step=show, viz=viz)
     else:
-        from planner.trials import torch_threads, worker_threads
+        from planner.trials import worker_threads
+        from sim.jobs import torch_threads
 
         with torch_threads(worker_threads(args.threads)):
             result = run_push(cfg, on_step=show, viz=viz)
