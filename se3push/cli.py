@@ -74,6 +74,7 @@ def _cmd_data(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
+    from se3net.distributed import ranks_from_env
     from se3net.train import TrainConfig, TrainingDiverged, train
 
     data = args.data[0] if len(args.data) == 1 else tuple(args.data)
@@ -90,6 +91,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
     except TrainingDiverged as err:
         print(f"error: {err}", file=sys.stderr)
         return 1
+    if not ranks_from_env().main:  # under torchrun, rank 0 speaks for the run
+        return 0
     print(
         f"done: {args.out}/best.pt; last validation flow MSE "
         f"{figures['val_flow_mse_cm2']:.4f} cm^2, ratio to no-motion {figures['val_ratio']:.3f}"
@@ -268,6 +271,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     options = (
         {"model": args.model, "flow_model": args.flow_model, "device": args.device}
         if args.what == "planner"
+        else {"device": args.device}
+        if args.what == "ddp"
         else {}
     )
     run_bench(args.what, repeats=args.repeats, json_path=args.json, **options)
@@ -440,7 +445,7 @@ def _parser() -> argparse.ArgumentParser:
     s.set_defaults(run=_cmd_improve)
 
     s = sub.add_parser("bench", help="time the hot paths (medians over repeats)")
-    s.add_argument("what", choices=["world", "data", "model", "planner", "sampling"],
+    s.add_argument("what", choices=["world", "data", "model", "planner", "sampling", "ddp"],
                    help="which benchmark")  # fmt: skip
     s.add_argument("--repeats", type=int, default=20, help="timed repeats per figure")
     s.add_argument("--json", default=None, metavar="PATH", help="also write the figures as JSON")
@@ -450,7 +455,8 @@ def _parser() -> argparse.ArgumentParser:
         help="planner: the SE3-Net checkpoint to time (default: the shipped one)",
     )
     s.add_argument("--flow-model", default=None, help="planner: also time a flow-net checkpoint")
-    s.add_argument("--device", default="cpu", help="planner: device of the learned backends")
+    s.add_argument("--device", default="cpu",
+                   help="planner: device of the learned backends; ddp: of training")  # fmt: skip
     s.set_defaults(run=_cmd_bench)
 
     s = sub.add_parser(
