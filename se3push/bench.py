@@ -385,8 +385,10 @@ def bench_ddp(*, repeats: int, device: str = "cpu", iters: int = 60, batch: int 
     cuda = device.startswith("cuda")
     counts = tuple(range(1, min(2, torch.cuda.device_count()) + 1)) if cuda else (1, 2)
     runs = max(1, min(repeats, 3))
+    # load_average_before: what else ran on the machine (1-minute load average)
     out: dict = {"device": device, "iters": iters, "batch": batch, "examples": iters * batch,
-                 "cpus": os.cpu_count(), "runs": runs}  # fmt: skip
+                 "cpus": os.cpu_count(), "runs": runs,
+                 "load_average_before": os.getloadavg()[0]}  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "data"
         generate(DataConfig("single_box", episodes=40), data, workers=2, progress=False)
