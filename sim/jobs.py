@@ -17,6 +17,7 @@ from __future__ import annotations
 import importlib.util
 import multiprocessing
 import os
+import socket
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
@@ -55,6 +56,23 @@ class Backend:
             raise InputError(f"--threads must be at least 1, got {self.threads}")
         if self.kind == "ray" and importlib.util.find_spec("ray") is None:
             raise InputError(f"--backend ray needs Ray: {SCALE_EXTRA}")
+        if self.address is not None:
+            check_reachable(self.address)
+
+
+def check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """Refuse a Ray address of the form ``[ray://]HOST:PORT`` where nothing answers (Ray
+    itself would retry for minutes); ``auto`` and ``local`` are Ray's to resolve."""
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except OSError as err:
+        raise InputError(
+            f"--address {address}: no Ray cluster answers there ({err.strerror or err}); "
+            "give the address `ray start --head` printed, or auto"
+        ) from None
 
 
 @contextmanager

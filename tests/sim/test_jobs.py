@@ -41,6 +41,13 @@ def test_bad_backends_are_refused_with_what_to_do(monkeypatch, capsys):
 
 
 @pytest.mark.scale
+def test_an_address_where_no_cluster_answers_is_refused_at_once(capsys):
+    pytest.importorskip("ray", reason='the scale extra: pip install -e ".[scale]"')
+    with pytest.raises(InputError, match="--address 127.0.0.1:1: no Ray cluster answers there"):
+        Backend("ray", address="127.0.0.1:1")  # not after minutes of Ray's retries
+
+
+@pytest.mark.scale
 def test_ray_runs_the_jobs_in_its_own_workers(ray_local):
     jobs = [(x,) for x in range(6)]
     got = list(run_jobs(_square_and_pid, jobs, Backend("ray", 2), ordered=True))
