@@ -29,15 +29,7 @@ from typing import Any
 import numpy as np
 
 from planner.loop import PushConfig, push_scenario, run_push
-from planner.trials import (
-    TrialsConfig,
-    draw_trial,
-    run_trials,
-    summary_cells,
-    torch_threads,
-    worker_pool,
-    worker_threads,
-)
+from planner.trials import TrialsConfig, draw_trial, run_trials, summary_cells, worker_backend
 from scenarios import InputError, load_scenario
 from scenarios.config import differences
 from sim.dataset import (
@@ -49,6 +41,7 @@ from sim.dataset import (
     episode_stats,
     merge_stats,
 )
+from sim.jobs import Backend, run_jobs
 from sim.shards import atomic_write_bytes, atomic_write_json, portable_path, write_shard
 
 COLLECT_STREAM = 1_000_003
@@ -133,8 +126,9 @@ def record_trial(cfg: ImproveConfig, model: str, r: int, i: int, steps_per_episo
     return {"reset_seed": trial["reset_seed"], "episodes": episodes, **result.summary()}
 
 
-def collect(cfg: ImproveConfig, model: str, r: int, out: Path, *, workers: int) -> dict:
-    """Record round r's closed-loop pushes as a dataset folder ``out``; returns its manifest."""
+def collect(cfg: ImproveConfig, model: str, r: int, out: Path, *, jobs: Backend) -> dict:
+    """Record round r's closed-loop pushes as a dataset folder ``out``, the trials run on
+    ``jobs``; returns its manifest."""
     from tqdm import tqdm
 
     from sim.datastore import read_manifest
@@ -150,20 +144,11 @@ def collect(cfg: ImproveConfig, model: str, r: int, out: Path, *, workers: int) 
                for i in range(cfg.heldout)}  # fmt: skip
     args = [(cfg, model, r, i, T) for i in range(cfg.trials_per_round)]
     bar = tqdm(total=len(args), unit="trial", desc=f"round {r}: collect")
-    threads = worker_threads()
-    if workers == 1:
-        trials = []
-        with torch_threads(threads):
-            for a in args:
-                trials.append(record_trial(*a))
-                bar.update(1)
-    else:
-        with worker_pool(workers, threads) as pool:
-            futures = [pool.submit(record_trial, *a) for a in args]
-            trials = []
-            for f in futures:  # in order: the bytes do not depend on the number of workers
-                trials.append(f.result())
-                bar.update(1)
+    trials = []
+    # in order: the bytes do not depend on the backend or the number of workers
+    for t in run_jobs(record_trial, args, jobs, ordered=True):
+        trials.append(t)
+        bar.update(1)
     bar.close()
     leaked = [t["reset_seed"] for t in trials if t["reset_seed"] in heldout]
     if leaked:
@@ -223,11 +208,21 @@ def finetune(cfg: ImproveConfig, init: str, data: list[str], out: Path) -> str:
     return str(out / "best.pt")
 
 
-def run_improve(cfg: ImproveConfig, out: str | Path, *, workers: int = 1) -> dict[str, Any]:
-    """Run (or continue) the rounds; returns and writes the per-round table."""
+def run_improve(
+    cfg: ImproveConfig,
+    out: str | Path,
+    *,
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
+) -> dict[str, Any]:
+    """Run (or continue) the rounds, the closed-loop pushes on ``workers`` workers of
+    ``backend`` (``sim.jobs``: the local pool, or Ray at ``address``); returns and writes the
+    per-round table."""
     from se3net.checkpoint import load_checkpoint
     from sim.datastore import read_manifest, scenario_of
 
+    jobs = worker_backend(workers, None, backend, address)
     scenario = push_scenario(cfg.scenario)  # refuse what cannot work before writing anything
     load_checkpoint(cfg.model, scenario=scenario)
     if scenario_of(read_manifest(cfg.data)) != scenario:
@@ -250,14 +245,15 @@ def run_improve(cfg: ImproveConfig, out: str | Path, *, workers: int = 1) -> dic
             scenario=cfg.scenario, n=cfg.heldout, model=model, planner=cfg.planner,
             seed=cfg.seed, max_steps=cfg.max_steps,
         )  # fmt: skip
-        summary = run_trials(tcfg, out / f"round_{r}" / "heldout", workers=workers)
+        summary = run_trials(tcfg, out / f"round_{r}" / "heldout", workers=workers,
+                             backend=backend, address=address)  # fmt: skip
         figures = {k: v for k, v in summary.items() if k != "config"}
         return {"round": r, "model": portable_path(model), **figures}
 
     rows = [heldout(cfg.model, 0)]
     model, data = cfg.model, [cfg.data]
     for r in range(1, cfg.rounds + 1):
-        manifest = collect(cfg, model, r, out / f"round_{r}" / "data", workers=workers)
+        manifest = collect(cfg, model, r, out / f"round_{r}" / "data", jobs=jobs)
         data.append(str(out / f"round_{r}" / "data"))
         model = finetune(cfg, model, data, out / f"round_{r}" / "model")
         rows.append({**heldout(model, r), "new_episodes": manifest["identity"]["episodes"]})

@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 import torch
 
-from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
+from planner import Planner, PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
 from planner.cost import CostConfig
 from planner.diagnostics import STEP_FIGURES, exploitation, step_figures
 from planner.viz import MeshcatVisualiser, NullVisualiser
@@ -138,6 +138,29 @@ def push_scenario(name_or_path: str) -> Scenario:
     return scenario
 
 
+def within(errors: tuple[float, float], tolerance: tuple[float, float] = TIGHT) -> bool:
+    """Whether a pose error (position m, yaw deg; ``sim.planar.pose_errors``) is within a
+    tolerance (:data:`TIGHT` or :data:`LOOSE`)."""
+    return errors[0] <= tolerance[0] and errors[1] <= tolerance[1]
+
+
+def push_planner(cfg: PushConfig, scenario: Scenario, world: PushWorld) -> Planner:
+    """The planner of a closed-loop push in ``world`` (reset): ``cfg``'s dynamics (the oracle
+    and no-motion backends hold this world), optimiser, cost toward ``cfg.goal`` and settings,
+    seeded with ``cfg.seed``."""
+    if cfg.model in ("oracle", "no-motion"):
+        dynamics = make_dynamics(cfg.model, scenario, world=world, object_index=cfg.object_index)
+    else:
+        dynamics = make_dynamics("se3net", scenario, model=cfg.model, device=cfg.device)
+    return make_planner(
+        cfg.planner,
+        dynamics,
+        PushCost(scenario, torch.tensor(np.array(cfg.goal, dtype=float)), cfg.cost),
+        scenario,
+        replace(cfg.planning, seed=cfg.seed),
+    )
+
+
 def check_reachable(scenario: Scenario, goal: tuple[float, float, float]) -> None:
     """Refuse a goal that is not finite or outside the scenario's goal region, saying where the
     region is."""
@@ -176,18 +199,8 @@ def run_push(
             f"object {cfg.object_index} does not exist: scenario {scenario.name} with seed "
             f"{cfg.seed} has {len(world.objects)} object(s) (indices 0..{len(world.objects) - 1})"
         )
-    if cfg.model in ("oracle", "no-motion"):
-        dynamics = make_dynamics(cfg.model, scenario, world=world, object_index=cfg.object_index)
-    else:
-        dynamics = make_dynamics("se3net", scenario, model=cfg.model, device=cfg.device)
+    planner = push_planner(cfg, scenario, world)
     goal = np.array(cfg.goal, dtype=float)
-    planner = make_planner(
-        cfg.planner,
-        dynamics,
-        PushCost(scenario, torch.tensor(goal), cfg.cost),
-        scenario,
-        replace(cfg.planning, seed=cfg.seed),
-    )
     period = world.objects[cfg.object_index].yaw_period_rad
     others = [j for j in range(len(world.objects)) if j != cfg.object_index]
     others_start = obs.object_poses[others, :2].copy()
@@ -196,8 +209,7 @@ def run_push(
         return pose_errors(obs.object_poses[cfg.object_index], goal, period)
 
     def reached() -> bool:
-        pos_err, yaw_err = errors()
-        return pos_err <= TIGHT[0] and yaw_err <= TIGHT[1]
+        return within(errors(), TIGHT)
 
     noise = np.random.default_rng([cfg.seed, 11])
     bound = scenario.action.max_speed_m_s
@@ -207,7 +219,7 @@ def run_push(
         on_transition(world, obs, None)
     viz = viz or NullVisualiser()
     viz.start(world, obs, goal, object_index=cfg.object_index, horizon=planner.cfg.horizon,
-              model=getattr(dynamics, "model", None))  # fmt: skip
+              model=getattr(planner.dynamics, "model", None))  # fmt: skip
     try:
         for step in range(cfg.max_steps):
             if reached():
@@ -238,8 +250,8 @@ def run_push(
         reason = "reached"
     return PushResult(
         seed=cfg.seed,
-        success_tight=pos_err <= TIGHT[0] and yaw_err <= TIGHT[1],
-        success_loose=pos_err <= LOOSE[0] and yaw_err <= LOOSE[1],
+        success_tight=within((pos_err, yaw_err), TIGHT),
+        success_loose=within((pos_err, yaw_err), LOOSE),
         final_pos_err_m=pos_err,
         final_yaw_err_deg=yaw_err,
         steps=len(records),

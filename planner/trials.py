@@ -13,10 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-import multiprocessing
-from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -30,6 +26,7 @@ from planner.loop import PushConfig, push_scenario, run_push
 from scenarios import InputError, Scenario, load_scenario
 from scenarios.config import differences
 from sim import PushWorld
+from sim.jobs import Backend, run_jobs
 from sim.planar import pose_errors
 from sim.shards import atomic_write_json
 
@@ -184,31 +181,10 @@ def worker_threads(threads: int | None = None) -> int:
     return threads
 
 
-@contextmanager
-def torch_threads(n: int) -> Iterator[None]:
-    """Run the body with ``n`` torch threads in this process, then restore the setting."""
-    import torch
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
-
-
-def _init_worker(threads: int) -> None:
-    import torch
-
-    torch.set_num_threads(threads)
-
-
-def worker_pool(workers: int, threads: int) -> ProcessPoolExecutor:
-    """Forked processes for closed-loop work, each with ``threads`` torch threads."""
-    ctx = multiprocessing.get_context("fork")
-    return ProcessPoolExecutor(
-        max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(threads,)
-    )
+def worker_backend(workers: int, threads: int | None, backend: str, address: str | None) -> Backend:
+    """The backend of closed-loop jobs: ``workers`` workers of ``threads`` torch threads
+    (:func:`worker_threads`) on ``backend`` (local or ray, at ``address``)."""
+    return Backend(backend, workers, address, worker_threads(threads))
 
 
 def _weights_of(model: str) -> str | None:
@@ -258,10 +234,14 @@ def run_trials(
     *,
     workers: int = 1,
     threads: int | None = None,
+    backend: str = "local",
+    address: str | None = None,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Run (or finish) a trial set into ``out`` with ``workers`` processes of ``threads``
-    torch threads each (by default the cores shared out); returns the summary.
+    """Run (or finish) a trial set into ``out`` with ``workers`` workers of ``threads`` torch
+    threads each (one by default) on ``backend`` (``sim.jobs``: the local process pool, or Ray
+    at ``address``); returns the summary. The records are the same for any backend and number
+    of workers, and ``trials.jsonl`` ends in trial order.
 
     Asked for fewer trials than the folder holds, it summarises the first ``n`` and leaves the
     folder's ``summary.json`` and ``paths.png`` (which describe the whole set) as they are.
@@ -271,9 +251,7 @@ def run_trials(
     """
     from tqdm import tqdm
 
-    if workers < 1:
-        raise InputError(f"--workers must be at least 1, got {workers}")
-    threads = worker_threads(threads)
+    jobs = worker_backend(workers, threads, backend, address)
     push_scenario(cfg.scenario)  # fail early on an unknown scenario, or one of joint controls
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -321,15 +299,11 @@ def run_trials(
             success=f"{sum(r['success_tight'] for r in records.values())}/{len(records)}"
         )
 
-    if workers == 1:
-        with torch_threads(threads):
-            for i in todo:
-                record(run_trial(cfg, i))
-    else:
-        with worker_pool(workers, threads) as pool:
-            for fut in as_completed([pool.submit(run_trial, cfg, i) for i in todo]):
-                record(fut.result())
+    for rec in run_jobs(run_trial, [(cfg, i) for i in todo], jobs):
+        record(rec)
     bar.close()
+    if todo:  # appended as they finished; kept in trial order, whatever ran them
+        log.write_text("".join(json.dumps(records[i]) + "\n" for i in sorted(records)))
     ordered = [records[i] for i in range(cfg.n)]
     summary = {"config": asdict(cfg), **summarize(ordered)}
     if not prefix:  # the folder's files describe its whole set, not a prefix asked of it

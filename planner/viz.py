@@ -39,6 +39,21 @@ Y_UP_TO_Z_UP = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1.
 """turns meshcat's cylinders, which stand along y, to stand along z"""
 
 
+VIEW_DIRECTION = np.array([0.75, -0.25, 0.75])
+"""where the recording's camera looks from (world frame, toward the table's centre): above
+the +x edge, a little to the side, about 45 degrees down"""
+VIEW_FOV_DEG = 75.0
+"""meshcat's default camera: its vertical field of view"""
+
+
+def view_position(table_size_m: tuple[float, float] | list[float], *, margin: float = 1.4) -> list:
+    """The position (world frame, m) of the recording's camera from which the table, of
+    ``table_size_m``, fills the view with a ``margin`` around it."""
+    radius = 0.5 * math.hypot(*table_size_m)  # a sphere around the table top
+    distance = margin * radius / math.tan(math.radians(VIEW_FOV_DEG / 2))
+    return (distance * VIEW_DIRECTION / np.linalg.norm(VIEW_DIRECTION)).tolist()
+
+
 class NullVisualiser:
     """Does nothing: the loop never checks whether visualisation is on."""
 
@@ -108,10 +123,12 @@ class MeshcatVisualiser:
             self._object(f"predicted/{h}", spec, ghost)
         self._cloud(obs, model)
         self._place(self.vis, obs, None)
-        # a view of the table from the camera's side, without the floor grid
+        # the table filling the view, from the camera's side, without the floor grid and axes
         self.vis["/Grid"].set_property("visible", False)
+        self.vis["/Axes"].set_property("visible", False)
         self.vis["/Cameras/default"].set_transform(np.eye(4))
-        self.vis["/Cameras/default/rotated/<object>"].set_property("position", [0.75, 0.65, 0.25])
+        x, y, z = view_position(t.size_m)  # meshcat's camera frame is y-up: (x, z, -y)
+        self.vis["/Cameras/default/rotated/<object>"].set_property("position", [x, z, -y])
 
     def _object(self, path: str, spec, material) -> None:
         """The object's prisms (``sim.shapes``): boxes, upright cylinders, convex meshes."""

@@ -10,6 +10,11 @@ cloud is fed back as the next input, exactly as the planner rolls the model (the
 position in the controls integrated from the commanded velocities, not read from the data),
 averaged over the N steps; the best checkpoint is then the one with the lowest validation
 rollout loss. ``init`` starts from a checkpoint's weights (fine-tuning a one-step model).
+
+Under ``torchrun`` the run is data-parallel (``se3net.distributed``): every process draws the
+same batch and trains on its shard of it in a DistributedDataParallel step; rank 0 alone
+validates and writes the run folder. ``batch`` is the total over the processes, so a run of N
+processes sees the same examples per step as a run of one.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ from scenarios.config import differences
 from se3net.checkpoint import manifest_hash, read_checkpoint, save_checkpoint
 from se3net.data import PushDataset, paper_noise
 from se3net.device import check_device
+from se3net.distributed import Ranks, broadcast, join, leave, mean_over_ranks, rank_device, shard
 from se3net.metrics import LOSSES, FlowStats, point_loss
 from se3net.model import ModelConfig, build_model, sharpening
 from se3net.rollout import rollout
@@ -150,6 +156,19 @@ def rollout_loss(
     return total / steps
 
 
+class StepLoss(torch.nn.Module):
+    """The loss of one training batch (:func:`rollout_loss`) as a module: DistributedDataParallel
+    synchronises gradients through a module's forward, and the rollout calls the network's
+    parts (encode, predict) rather than its forward, so the whole loss is what it wraps."""
+
+    def __init__(self, model: torch.nn.Module, steps: int, dt: float, loss: str) -> None:
+        super().__init__()
+        self.model, self.steps, self.dt, self.loss = model, steps, dt, loss
+
+    def forward(self, b: dict[str, torch.Tensor], sharpen: dict[str, Any]) -> torch.Tensor:
+        return rollout_loss(self.model, b, self.steps, self.dt, loss=self.loss, **sharpen)
+
+
 def learning_rate(cfg: TrainConfig, it: int) -> float:
     return cfg.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(it / cfg.iters, 1.0))))
 
@@ -232,12 +251,23 @@ def init_weights(cfg: TrainConfig, mcfg: ModelConfig, ds: PushDataset) -> dict[s
 
 
 def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> dict[str, Any]:
-    """Train (or resume) a run; returns the last validation figures.
+    """Train (or resume) a run; returns the last validation figures (in every process of a
+    ``torchrun`` launch: rank 0's).
 
     Raises:
         TrainingDiverged: NaN or infinite loss (``last.pt`` keeps the last good state).
         FileExistsError: the run folder already holds a run and ``resume`` is False.
+        InputError: bad settings; under torchrun, a batch that does not split over the
+            processes, or a resume with another number of processes than the run had.
     """
+    ranks = join(cfg.device, cfg.batch)
+    try:
+        return _train(cfg, ranks, resume=resume, progress=progress and ranks.main)
+    finally:
+        leave(ranks)
+
+
+def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> dict[str, Any]:
     from tqdm import tqdm
 
     out = Path(cfg.out)
@@ -248,10 +278,11 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
         )
     if resume and not last.exists():
         raise FileNotFoundError(f"nothing to resume: {last} does not exist")
+    device = rank_device(cfg.device, ranks)
     torch.manual_seed(cfg.seed)
     data = {
         "horizon": cfg.rollout_steps, "stride": cfg.stride, "noise": paper_noise(cfg.noise),
-        "seed": cfg.seed, "device": cfg.device,
+        "seed": cfg.seed, "device": device,
     }  # fmt: skip
     ds = PushDataset(cfg.data, split="train", **data)
     val = PushDataset(cfg.data, split="val", **data)
@@ -267,12 +298,12 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
         stride=cfg.stride,
         **cfg.model_options(),
     )
-    model = build_model(mcfg).to(cfg.device)
+    model = build_model(mcfg).to(device)
     if cfg.init is not None:
         model.load_state_dict(init_weights(cfg, mcfg, ds))
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     rng = np.random.default_rng(cfg.seed)
-    gen = torch.Generator(device=cfg.device).manual_seed(cfg.seed)
+    gen = torch.Generator(device=device).manual_seed(cfg.seed)
     start, best = 0, math.inf
     if resume:
         blob = read_checkpoint(last)
@@ -288,6 +319,12 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
                 f"--resume with other settings than the run's ({'; '.join(diffs)}); "
                 "use the original ones"
             )
+        if state.get("world_size", 1) != ranks.world:
+            raise InputError(
+                f"--resume with {ranks.world} process(es), but the run was trained on "
+                f"{state.get('world_size', 1)}; resume it with torchrun --nproc_per_node "
+                f"{state.get('world_size', 1)} (1: plain se3push train) to continue it exactly"
+            )
         if blob["data_hash"] != data_hash:
             raise InputError(
                 f"--resume with other data than the run was trained on ({cfg.data} changed)"
@@ -299,15 +336,25 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
         start, best = state["iteration"], state["best"]
         resumed_figures = blob["extra"]
         log = out / "metrics.jsonl"  # drop evaluations logged after the resumed checkpoint
-        lines = [ln for ln in log.read_text().splitlines() if json.loads(ln)["iteration"] <= start]
-        log.write_text("".join(ln + "\n" for ln in lines))
+        if ranks.main:
+            lines = [ln for ln in log.read_text().splitlines()
+                     if json.loads(ln)["iteration"] <= start]  # fmt: skip
+            log.write_text("".join(ln + "\n" for ln in lines))
     else:
-        out.mkdir(parents=True, exist_ok=True)
         if cfg.init is None:
             fit_normalisation(model, ds, rng)
-        (out / "metrics.jsonl").write_text("")
+        if ranks.main:
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "metrics.jsonl").write_text("")
     val_idx = np.linspace(0, len(val) - 1, min(cfg.val_examples, len(val))).round().astype(int)
     model.train()
+    step_loss: torch.nn.Module = StepLoss(model, cfg.rollout_steps, dt, cfg.loss)
+    if ranks.world > 1:  # each step's gradients averaged over the processes' shards
+        from torch.nn.parallel import DistributedDataParallel
+
+        step_loss = DistributedDataParallel(
+            step_loss, device_ids=[device] if device.startswith("cuda") else None
+        )
 
     def checkpoint(path: Path, it: int, figures: dict[str, float], *, with_state: bool) -> None:
         state = None
@@ -319,6 +366,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
                 "torch_gen": gen.get_state(),
                 "iteration": it,
                 "best": best,
+                "world_size": ranks.world,
             }
         folders = [cfg.data] if isinstance(cfg.data, str | Path) else cfg.data
         extra = {"iteration": it, "data": [portable_path(d) for d in folders], **figures}
@@ -341,9 +389,8 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
         # a fine-tuned model keeps the sharpening it ended with (its masks are already binary)
         sigma, gamma = sharpening(cfg.iters if cfg.init else it, cfg.iters, mcfg)
         ds.set_epoch(it * cfg.batch // len(ds))  # fresh noise in each pass over the data
-        b = ds.batch(draw_batch(ds, cfg, rng))
-        sharpen = {"sigma": sigma, "gamma": gamma, "generator": gen}
-        loss = rollout_loss(model, b, cfg.rollout_steps, dt, loss=cfg.loss, **sharpen)
+        b = ds.batch(shard(draw_batch(ds, cfg, rng), ranks))  # this process's share
+        loss = step_loss(b, {"sigma": sigma, "gamma": gamma, "generator": gen})
         if not torch.isfinite(loss):
             raise TrainingDiverged(
                 f"loss became {float(loss.detach())} at step {it + 1}; {last} keeps the last "
@@ -360,16 +407,20 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
         bar.set_postfix(loss=f"{running / n_running:.4f}")
         done = it + 1
         if done % cfg.eval_every == 0 or done == cfg.iters:
+            train_loss = mean_over_ranks(running / n_running, ranks)
+            running, n_running = 0.0, 0
+            if not ranks.main:  # rank 0 alone validates and writes the run folder
+                continue
             figures = {
                 "iteration": done,
-                "train_loss": running / n_running,
-                **validate(model, val, val_idx, cfg.batch, cfg.device, cfg.rollout_steps, cfg.loss),
+                "train_loss": train_loss,
+                **validate(model, val, val_idx, cfg.batch, device, cfg.rollout_steps, cfg.loss),
                 "sigma": sigma,
                 "gamma": gamma,
                 "lr": learning_rate(cfg, it),
                 "elapsed_s": time.time() - t0,
+                "examples": done * cfg.batch,
             }
-            running, n_running = 0.0, 0
             with open(out / "metrics.jsonl", "a") as f:
                 f.write(json.dumps(figures) + "\n")
             score = figures["val_rollout_loss" if cfg.rollout_steps > 1 else "val_flow_mse_cm2"]
@@ -385,4 +436,4 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
                 f"(ratio to no-motion {figures['val_ratio']:.3f})"
             )
     bar.close()
-    return figures
+    return broadcast(figures, ranks)

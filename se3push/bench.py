@@ -317,9 +317,10 @@ def bench_sampling(*, repeats: int, pushes: int = 3, steps: int = 16) -> dict:
     from tqdm import tqdm
 
     from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
-    from planner.trials import draw_trial, torch_threads
+    from planner.trials import draw_trial
     from scenarios import load_scenario
     from sim import PushWorld
+    from sim.jobs import torch_threads
 
     scenario = load_scenario("single_box")
     dyn = make_dynamics("se3net", scenario)
@@ -364,12 +365,63 @@ def bench_sampling(*, repeats: int, pushes: int = 3, steps: int = 16) -> dict:
     return out
 
 
+def bench_ddp(*, repeats: int, device: str = "cpu", iters: int = 60, batch: int = 32) -> dict:
+    """``se3push train`` under ``torchrun`` with 1 and 2 processes (gloo on CPU, one torch
+    thread each; NCCL on CUDA, one GPU each, as many as there are): examples/s of the training
+    loop (median over runs, the final validation included) and the validation loss after the
+    same ``iters * batch`` examples (the batch is the total over the processes), on 40 episodes
+    of ``single_box`` (64x64, the shipped model's setting)."""
+    import os
+    import subprocess
+    import sys
+    import tempfile
+
+    import torch
+
+    from se3net.device import check_device
+    from sim.dataset import DataConfig, generate
+
+    check_device(device)
+    cuda = device.startswith("cuda")
+    counts = tuple(range(1, min(2, torch.cuda.device_count()) + 1)) if cuda else (1, 2)
+    runs = max(1, min(repeats, 3))
+    # load_average_before: what else ran on the machine (1-minute load average)
+    out: dict = {"device": device, "iters": iters, "batch": batch, "examples": iters * batch,
+                 "cpus": os.cpu_count(), "runs": runs,
+                 "load_average_before": os.getloadavg()[0]}  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        data = Path(tmp) / "data"
+        generate(DataConfig("single_box", episodes=40), data, workers=2, progress=False)
+        for n in counts:
+            rates, losses, mses = [], [], []
+            for r in range(runs):
+                run = Path(tmp) / f"run_{n}_{r}"
+                cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone",
+                       "--nproc_per_node", str(n), "-m", "se3push", "train", "--data", str(data),
+                       "--out", str(run), "--iters", str(iters), "--batch", str(batch),
+                       "--eval-every", str(iters), "--device", device]  # fmt: skip
+                env = {**os.environ, "OMP_NUM_THREADS": "1"}
+                subprocess.run(cmd, check=True, capture_output=True, env=env)
+                last = json.loads((run / "metrics.jsonl").read_text().splitlines()[-1])
+                rates.append(iters * batch / last["elapsed_s"])
+                losses.append(last["val_loss"])
+                mses.append(last["val_flow_mse_cm2"])
+            key = "1_process" if n == 1 else f"{n}_processes"
+            out[f"examples_per_s_{key}"] = float(np.median(rates))
+            out[f"val_loss_{key}"] = float(np.median(losses))
+            out[f"val_flow_mse_cm2_{key}"] = float(np.median(mses))
+    if len(counts) > 1:
+        out["speedup_2_vs_1"] = out["examples_per_s_2_processes"] / out["examples_per_s_1_process"]
+    return out
+
+
 BENCHES: dict[str, Callable[..., dict[str, float]]] = {
     "world": bench_world,
     "data": bench_data,
     "model": bench_model,
     "planner": bench_planner,
     "sampling": bench_sampling,
+    "ddp": bench_ddp,
 }
 
 

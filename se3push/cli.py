@@ -59,7 +59,7 @@ def _cmd_data(args: argparse.Namespace) -> int:
         steps_per_episode=args.steps_per_episode,
         seed=args.seed,
     )
-    manifest = generate(cfg, args.out, workers=args.workers)
+    manifest = generate(cfg, args.out, workers=args.workers, **_backend(args))
     st = summarize(manifest)
     motion = (
         f"object moves in {st['object_motion_fraction']:.1%}"
@@ -74,6 +74,7 @@ def _cmd_data(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
+    from se3net.distributed import ranks_from_env
     from se3net.train import TrainConfig, TrainingDiverged, train
 
     data = args.data[0] if len(args.data) == 1 else tuple(args.data)
@@ -90,6 +91,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
     except TrainingDiverged as err:
         print(f"error: {err}", file=sys.stderr)
         return 1
+    if not ranks_from_env().main:  # under torchrun, rank 0 speaks for the run
+        return 0
     print(
         f"done: {args.out}/best.pt; last validation flow MSE "
         f"{figures['val_flow_mse_cm2']:.4f} cm^2, ratio to no-motion {figures['val_ratio']:.3f}"
@@ -115,7 +118,7 @@ def _cmd_trials(args: argparse.Namespace) -> int:
     cfg = TrialsConfig(scenario=args.scenario, n=args.n, model=args.model, planner=args.planner,
                        seed=args.seed, max_steps=args.max_steps,
                        **_planning_configs(args))  # fmt: skip
-    s = run_trials(cfg, args.out, workers=args.workers, threads=args.threads)
+    s = run_trials(cfg, args.out, workers=args.workers, threads=args.threads, **_backend(args))
     lo, hi = s["success_tight_ci95"]
     lo2, hi2 = s["success_loose_ci95"]
     print(
@@ -167,6 +170,25 @@ def _closed_loop_options(s: argparse.ArgumentParser, *, seed_help: str) -> None:
     s.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
     s.add_argument("--max-steps", type=int, default=60, help="control steps per trial")
     s.add_argument("--workers", type=int, default=1, help="processes for the trials")
+
+
+def _backend_options(s: argparse.ArgumentParser) -> None:
+    """Where the independent jobs of a command run (``sim.jobs``)."""
+    s.add_argument(
+        "--backend", choices=["local", "ray"], default="local",
+        help="local: a process pool on this machine; ray: Ray workers (pip install -e "
+        "\".[scale]\"); the same records and bytes either way",
+    )  # fmt: skip
+    s.add_argument(
+        "--address", default=None,
+        help="ray: the address of an existing Ray cluster (default: start one here with "
+        "--workers CPUs); its nodes must see the same files",
+    )  # fmt: skip
+
+
+def _backend(args: argparse.Namespace) -> dict:
+    """``backend`` and ``address`` from :func:`_backend_options`' flags."""
+    return {"backend": args.backend, "address": args.address}
 
 
 def _noise_option(s: argparse.ArgumentParser, what: str) -> None:
@@ -237,7 +259,7 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         rollout_steps=args.rollout_steps, lr=args.lr, planner=args.planner,
         max_steps=args.max_steps, visited_fraction=args.visited_fraction,
     )  # fmt: skip
-    run_improve(cfg, args.out, workers=args.workers)
+    run_improve(cfg, args.out, workers=args.workers, **_backend(args))
     print((Path(args.out) / "improve.md").read_text())
     print(f"wrote {args.out}/improve.md, improve.json, improve.png and round_*/")
     return 0
@@ -249,6 +271,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     options = (
         {"model": args.model, "flow_model": args.flow_model, "device": args.device}
         if args.what == "planner"
+        else {"device": args.device}
+        if args.what == "ddp"
         else {}
     )
     run_bench(args.what, repeats=args.repeats, json_path=args.json, **options)
@@ -286,6 +310,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--steps-per-episode", type=int, default=20, help="actions per episode")
     s.add_argument("--inspect", metavar="DIR", help="print a dataset's manifest and statistics")
+    _backend_options(s)
     s.set_defaults(run=_cmd_data)
 
     s = sub.add_parser("train", help="train an SE3-Net or a baseline on a dataset")
@@ -376,6 +401,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="torch threads per worker (default 1: the same records for any "
                    "--workers)")  # fmt: skip
     s.add_argument("--out", required=True, help="folder for trials.jsonl, summary.json, paths.png")
+    _backend_options(s)
     s.set_defaults(run=_cmd_trials)
 
     s = sub.add_parser("study", help="how model accuracy relates to closed-loop success")
@@ -415,10 +441,11 @@ def _parser() -> argparse.ArgumentParser:
         help="share of each fine-tuning batch drawn from the planner-visited data",
     )
     s.add_argument("--out", required=True, help="folder of the rounds (resumable)")
+    _backend_options(s)
     s.set_defaults(run=_cmd_improve)
 
     s = sub.add_parser("bench", help="time the hot paths (medians over repeats)")
-    s.add_argument("what", choices=["world", "data", "model", "planner", "sampling"],
+    s.add_argument("what", choices=["world", "data", "model", "planner", "sampling", "ddp"],
                    help="which benchmark")  # fmt: skip
     s.add_argument("--repeats", type=int, default=20, help="timed repeats per figure")
     s.add_argument("--json", default=None, metavar="PATH", help="also write the figures as JSON")
@@ -428,7 +455,8 @@ def _parser() -> argparse.ArgumentParser:
         help="planner: the SE3-Net checkpoint to time (default: the shipped one)",
     )
     s.add_argument("--flow-model", default=None, help="planner: also time a flow-net checkpoint")
-    s.add_argument("--device", default="cpu", help="planner: device of the learned backends")
+    s.add_argument("--device", default="cpu",
+                   help="planner: device of the learned backends; ddp: of training")  # fmt: skip
     s.set_defaults(run=_cmd_bench)
 
     s = sub.add_parser(
@@ -516,7 +544,8 @@ def _cmd_plan_push(args: argparse.Namespace) -> int:
     if args.threads is None:
         result = run_push(cfg, on_step=show, viz=viz)
     else:
-        from planner.trials import torch_threads, worker_threads
+        from planner.trials import worker_threads
+        from sim.jobs import torch_threads
 
         with torch_threads(worker_threads(args.threads)):
             result = run_push(cfg, on_step=show, viz=viz)

@@ -16,8 +16,6 @@ finished shards.
 from __future__ import annotations
 
 import json
-import multiprocessing
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -30,6 +28,7 @@ from scenarios.config import differences, scenario_dict
 from sim.camera import associated_targets
 from sim.controls import PUSHER_LAYOUT, control_layout
 from sim.explore import MODES, ExplorationConfig, ExplorationPolicy, describe_exploration
+from sim.jobs import Backend, run_jobs
 from sim.joint_explore import (
     JOINT_MODES,
     JointExploration,
@@ -362,20 +361,28 @@ def open_folder(out_dir: Path, ident: dict[str, Any]) -> dict[str, Any]:
 
 
 def generate(
-    cfg: DataConfig, out_dir: str | Path, *, workers: int = 1, progress: bool = True
+    cfg: DataConfig,
+    out_dir: str | Path,
+    *,
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
+    progress: bool = True,
 ) -> dict[str, Any]:
     """Generate (or finish generating) a dataset; returns the manifest.
 
     Args:
         cfg: what to generate.
         out_dir: the dataset folder (created if needed).
-        workers: processes; the bytes do not depend on it.
+        workers: processes (or Ray CPUs); the bytes do not depend on it.
+        backend: ``local`` (forked processes) or ``ray`` (``sim.jobs``); the bytes do not
+            depend on it either.
+        address: an existing Ray cluster's address (its nodes must see ``out_dir``).
         progress: show a tqdm bar (episodes, examples, examples/s, ETA).
     """
     from tqdm import tqdm
 
-    if workers < 1:
-        raise InputError(f"--workers must be at least 1, got {workers}")
+    jobs = Backend(backend, workers, address)  # workers use numpy and MuJoCo only
     scenario = load_scenario(cfg.scenario)
     out_dir = Path(out_dir)
     manifest = open_folder(out_dir, identity(cfg, scenario))
@@ -404,15 +411,8 @@ def generate(
         rate = bar.format_dict["rate"] or 0.0
         bar.set_postfix(examples=examples, ex_per_s=f"{rate * cfg.steps_per_episode:.0f}")
 
-    if workers == 1:
-        for i in todo:
-            record(*make_shard(cfg, i, str(out_dir)))
-    else:
-        ctx = multiprocessing.get_context("fork")  # workers use numpy and MuJoCo only
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            futures = [pool.submit(make_shard, cfg, i, str(out_dir)) for i in todo]
-            for fut in as_completed(futures):
-                record(*fut.result())
+    for shard in run_jobs(make_shard, [(cfg, i, str(out_dir.resolve())) for i in todo], jobs):
+        record(*shard)
     bar.close()
     manifest["complete"] = len(manifest["shards"]) == cfg.n_shards
     manifest["stats"] = merge_stats(

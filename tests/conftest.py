@@ -39,3 +39,13 @@ def tiny_data(tmp_path_factory):
         progress=False,
     )
     return root
+
+
+@pytest.fixture(scope="session")
+def ray_local():
+    """A local Ray instance of 2 worker CPUs, shared by the tests (skipped without the scale
+    extra). The code under test finds it started and leaves it running."""
+    ray = pytest.importorskip("ray", reason='the scale extra: pip install -e ".[scale]"')
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()

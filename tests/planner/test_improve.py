@@ -99,3 +99,17 @@ def test_an_interrupted_round_resumes_without_collecting_again(
     with pytest.raises(ValueError, match="another improve run"):
         run_improve(_cfg(tiny_data, start_model, trials_per_round=1, action_noise=0.3),
                     tmp_path / "b")  # fmt: skip
+
+
+@pytest.mark.scale
+def test_ray_collects_the_same_bytes_as_the_local_pool(ray_local, tiny_data, tmp_path):
+    from sim.jobs import Backend
+
+    cfg = _cfg(tiny_data, "oracle")
+    for name, jobs in (("local", Backend()), ("ray", Backend("ray", 2))):
+        improve_mod.collect(cfg, "oracle", 1, tmp_path / name, jobs=jobs)
+    a, b = (read_manifest(tmp_path / n)["shards"] for n in ("local", "ray"))
+    assert a["shard_00000.npz"]["sha256"] == b["shard_00000.npz"]["sha256"]
+    assert (tmp_path / "ray" / "shard_00000.npz").read_bytes() == (
+        tmp_path / "local" / "shard_00000.npz"
+    ).read_bytes()

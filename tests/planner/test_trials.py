@@ -238,3 +238,24 @@ def test_summaries_count_successes_by_the_pushed_objects_shape():
     s = summarize([rec("T", True, True), rec("T", False, True), rec("box", False, False)])
     assert s["by_shape"] == {"T": {"tight": 1, "loose": 2, "trials": 2},
                              "box": {"tight": 0, "loose": 0, "trials": 1}}  # fmt: skip
+
+
+@pytest.mark.scale
+def test_ray_gives_the_same_records_as_the_local_pool_and_resumes(ray_local, tmp_path):
+    """The same trial set on the local pool and on Ray (2 workers): the same records, in trial
+    order, apart from the wall-clock replan time; a Ray run extends a local folder."""
+    cfg = TrialsConfig("tiny", n=3, model="oracle", max_steps=3,
+                       planning=PlannerConfig(samples=16, iterations=2, elites=4))  # fmt: skip
+    run_trials(cfg, tmp_path / "local", workers=2, progress=False)
+    run_trials(cfg, tmp_path / "ray", workers=2, backend="ray", progress=False)
+    run_trials(replace(cfg, n=1), tmp_path / "resumed", progress=False)
+    run_trials(cfg, tmp_path / "resumed", workers=2, backend="ray", progress=False)
+
+    def lines(name):
+        return [_strip(json.loads(x))
+                for x in (tmp_path / name / "trials.jsonl").read_text().splitlines()]  # fmt: skip
+
+    assert [r["trial"] for r in lines("ray")] == [0, 1, 2]
+    assert lines("ray") == lines("local") == lines("resumed")
+    assert main(["trials", "--scenario", "tiny", "--n", "1", "--model", "no-motion",
+                 "--out", str(tmp_path / "x"), "--address", "auto"]) == 2  # fmt: skip

@@ -1,7 +1,9 @@
 import base64
 import math
 import re
+import shutil
 
+import numpy as np
 import pytest
 
 from planner.loop import PushConfig, run_push
@@ -88,3 +90,48 @@ def test_the_shipped_planning_resolution_model_colours_the_cloud_by_its_masks(tm
     n = obs.valid.sum()
     assert len(_rows(attrs["position"]["array"])) == n  # every camera point, not every other
     assert len(set(map(tuple, _rows(attrs["color"]["array"])))) >= 2  # coloured by mask
+
+
+def _screenshot(html, png) -> None:
+    """``html`` rendered by headless Chromium (WebGL in software) into ``png``, 800x600."""
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as profile:
+        subprocess.run(
+            ["chromium", "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+             "--disable-background-networking", "--disable-component-update", "--disable-sync",
+             "--no-first-run", f"--user-data-dir={profile}", "--virtual-time-budget=8000",
+             "--window-size=800,600", f"--screenshot={png}", f"file://{html}"],
+            check=True, capture_output=True, timeout=120,
+        )  # fmt: skip
+
+
+def _drawn(png):
+    """Masks of the pixels that show the table (tan #C8B89A, shaded) and the objects (orange
+    #DD7733)."""
+    import matplotlib.image as mi
+
+    im = (mi.imread(png)[..., :3] * 255).astype(int)
+    r, g, b = im[..., 0], im[..., 1], im[..., 2]
+    table = (r > g) & (g > b) & (r - b > 25) & (r - b < 90) & (r > 120)
+    obj = (r - g > 60) & (r - b > 110)
+    return table, obj
+
+
+@pytest.mark.skipif(shutil.which("chromium") is None, reason="needs Debian's chromium")
+def test_a_recording_draws_the_table_and_the_object_in_a_real_browser(tmp_path):
+    """A --record file loaded in headless Chromium: the table fills the view (the camera
+    frames it) and the pushed object is drawn on it."""
+    html, png = tmp_path / "run.html", tmp_path / "run.png"
+    assert plan_push_main(["--goal", "0.16", "0.0", "90", "--model", "oracle", "--max-steps",
+                           "1", "--record", str(html)]) in (0, 1)  # fmt: skip
+    _screenshot(html, png)
+    table, obj = _drawn(png)
+    rows, cols = map(lambda a: a.nonzero()[0], (table.any(1), table.any(0)))
+    height, width = table.shape
+    assert (np.ptp(cols) + 1) / width > 0.45 and (np.ptp(rows) + 1) / height > 0.45, "too small"
+    assert obj.sum() > 400  # the box, seen from about 0.6 m: over a thousand pixels
+    # the object sits on the table: its pixels lie within the table's extent
+    oy, ox = obj.nonzero()
+    assert rows.min() <= np.median(oy) <= rows.max() and cols.min() <= np.median(ox) <= cols.max()

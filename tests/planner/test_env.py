@@ -1,0 +1,61 @@
+"""The Gymnasium environment se3push/Push-v0 and the MPC planner driving it."""
+
+import numpy as np
+import pytest
+
+gymnasium = pytest.importorskip("gymnasium", reason='the scale extra: pip install -e ".[scale]"')
+
+from planner.env import ENV_ID, MPCPolicy, PushEnv  # noqa: E402
+from planner.loop import PushConfig, run_push  # noqa: E402
+from tests.planner.test_loop import _nearby_goal  # noqa: E402
+
+pytestmark = pytest.mark.scale
+
+
+def test_the_environment_passes_gymnasiums_checker():
+    from gymnasium.utils.env_checker import check_env
+
+    env = gymnasium.make(ENV_ID, scenario="tiny", max_steps=3)
+    check_env(env.unwrapped)
+    obs, info = env.reset(seed=1)
+    assert env.observation_space.contains(obs)
+    assert obs["cloud"].shape == (3, 32, 32) and obs["valid"].any()
+    assert np.allclose(obs["goal"], env.unwrapped.goal) and info["pos_err_m"] > 0
+    again, _ = env.reset(seed=1)
+    assert all(np.array_equal(obs[k], again[k]) for k in obs)  # seeded: the same push
+    for step in range(1, 4):
+        obs, reward, terminated, truncated, info = env.step(np.zeros(2))
+        assert reward == pytest.approx(-(info["pos_err_m"] / 0.02 + info["yaw_err_deg"] / 10))
+        assert not terminated and truncated == (step == 3)  # standing still reaches nothing
+
+
+def test_the_mpc_planner_drives_the_environment_as_the_closed_loop_does():
+    """The oracle planner pushes the box to a nearby goal through the environment, with the
+    very actions ``run_push`` takes, and the episode terminates on the tight tolerance."""
+    goal = _nearby_goal()
+    env = gymnasium.make(ENV_ID, scenario="tiny", max_steps=20)
+    obs, _ = env.reset(options={"world_seed": 0, "goal": goal})
+    policy = MPCPolicy(env, model="oracle")
+    actions, rewards = [], []
+    while True:
+        action = policy(obs)
+        assert env.action_space.contains(action)
+        actions.append(action.tolist())
+        obs, reward, terminated, truncated, info = env.step(action)
+        rewards.append(reward)
+        if terminated or truncated:
+            break
+    assert terminated and not truncated and info["success_tight"]
+    assert rewards[-1] > rewards[0] and rewards[-1] > -2
+    loop = run_push(PushConfig(goal=goal, scenario="tiny", model="oracle", max_steps=20))
+    assert actions == [r.action for r in loop.records]
+
+
+def test_bad_settings_are_refused():
+    from scenarios import InputError
+
+    with pytest.raises(InputError, match="joint-velocity controls"):
+        PushEnv("arm")
+    env = PushEnv("tiny")
+    with pytest.raises(InputError, match="outside the reachable region"):
+        env.reset(options={"goal": (5.0, 0.0, 0.0)})
