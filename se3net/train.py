@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -124,11 +124,8 @@ class TrainConfig:
         }
 
 
-# settings added after runs were made, at the values those runs had
-_LATER_SETTINGS = {
-    "stride": 1, "loss": "moving", "noise": "none", "controls": "fused",
-    "valid_channel": False, "full_res_head": False,
-}  # fmt: skip
+_LATER_SETTINGS = ("stride", "loss", "noise", "controls", "valid_channel", "full_res_head")
+"""settings added after runs were made: a run that has none ran at its default"""
 
 
 def rollout_loss(
@@ -311,8 +308,9 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
         run_cfg = dict(state["config"])
         if run_cfg.get("horizon") == 1:  # a setting of old runs that changed nothing at 1
             del run_cfg["horizon"]
-        for key, value in _LATER_SETTINGS.items():
-            run_cfg.setdefault(key, value)
+        defaults = {f.name: f.default for f in fields(TrainConfig)}
+        for key in _LATER_SETTINGS:
+            run_cfg.setdefault(key, defaults[key])
         if run_cfg != asdict(cfg):
             diffs = differences(run_cfg, asdict(cfg), old_has="the run has")
             raise InputError(
