@@ -1,18 +1,19 @@
 """Planner-visited data (data aggregation, as model-based RL does): ``se3push improve``.
 
-Each round runs closed-loop pushes with the current model, with some exploration noise on the
-executed actions, records every executed step as training episodes in the dataset format (the
-same exact associations as exploration data: they are the world's own observations), pools
-them with all data so far, fine-tunes the model on the pool, and measures it on a fixed
-held-out trial set that no round ever trains on.
+Each round runs closed-loop pushes with the current model in each of its scenarios, with some
+exploration noise on the executed actions, records every executed step as training episodes in
+the dataset format (the same exact associations as exploration data: they are the world's own
+observations), pools them with all data so far, fine-tunes the model on the pool, and measures
+it on a fixed held-out trial set per scenario that no round ever trains on. Scenarios named
+``measure_only`` are measured every round and never collected in (objects held out of training).
 
 Layout of ``out``::
 
-    config.json              the run's settings (a rerun must match them)
-    round_0/heldout/         trials of the starting model on the held-out set
-    round_R/data/            the round's planner-visited episodes (a dataset folder)
-    round_R/model/           the fine-tuning run (best.pt is the round's model)
-    round_R/heldout/         trials of that model on the held-out set
+    config.json                  the run's settings (a rerun must match them)
+    round_0/heldout/<scenario>/  trials of the starting model on each held-out set
+    round_R/data/<scenario>/     the round's planner-visited episodes (a dataset folder each)
+    round_R/model/               the fine-tuning run (best.pt is the round's model)
+    round_R/heldout/<scenario>/  trials of that model on each held-out set
     improve.json, improve.md, improve.png
 
 Every step of a round is kept when done (complete dataset, training checkpoints, trial
@@ -31,7 +32,7 @@ import numpy as np
 from planner.loop import PushConfig, push_scenario, run_push
 from planner.trials import TrialsConfig, draw_trial, run_trials, summary_cells, worker_backend
 from scenarios import InputError, load_scenario
-from scenarios.config import differences
+from scenarios.config import differences, scenario_dict
 from sim.dataset import (
     CONTROL_LAYOUT,
     DATA_FORMAT,
@@ -53,17 +54,19 @@ stream apart from the held-out set's (seed ``seed``)"""
 class ImproveConfig:
     """Rounds of planner-visited data collection and fine-tuning."""
 
-    scenario: str
-    """scenario name or TOML path"""
+    scenarios: tuple[str, ...]
+    """scenario names or TOML paths: collected in and measured on every round"""
     model: str
     """the starting checkpoint (round 0)"""
-    data: str
-    """the exploration dataset the starting model was trained on (pooled in every round)"""
+    data: tuple[str, ...]
+    """the exploration datasets the starting model was trained on (pooled in every round)"""
+    measure_only: tuple[str, ...] = ()
+    """scenarios measured every round but never collected in (objects held out of training)"""
     rounds: int = 3
     trials_per_round: int = 20
-    """closed-loop pushes recorded per round"""
+    """closed-loop pushes recorded per round in each of ``scenarios``"""
     heldout: int = 50
-    """held-out trials (never trained on) on which every round is measured"""
+    """held-out trials per scenario (never trained on) on which every round is measured"""
     seed: int = 0
     """seed of the held-out trial set; the collection trials come from other streams"""
     action_noise: float = 0.1
@@ -82,6 +85,11 @@ class ImproveConfig:
     max_steps: int = 60
 
     def __post_init__(self) -> None:
+        for name in ("scenarios", "data", "measure_only"):  # one name or path stands for one
+            value = getattr(self, name)
+            object.__setattr__(self, name, (value,) if isinstance(value, str) else tuple(value))
+        if not self.scenarios or not self.data:
+            raise InputError("improve needs at least one --scenario and one --data folder")
         for name in ("rounds", "trials_per_round", "heldout", "finetune_iters", "max_steps"):
             if getattr(self, name) < 1:
                 raise InputError(
@@ -96,11 +104,18 @@ class ImproveConfig:
     def collect_seed(self, r: int) -> int:
         return self.seed * COLLECT_STREAM + r
 
+    def measured(self) -> tuple[str, ...]:
+        """Every scenario the rounds are measured on: the collected ones, then the others."""
+        return (*self.scenarios, *self.measure_only)
 
-def record_trial(cfg: ImproveConfig, model: str, r: int, i: int, steps_per_episode: int) -> dict:
-    """Collection trial i of round r: push with ``model`` and noisy actions; returns the
-    executed steps cut into episodes of ``steps_per_episode`` and the trial's reset seed."""
-    trial = draw_trial(load_scenario(cfg.scenario), cfg.collect_seed(r), i)
+
+def record_trial(
+    cfg: ImproveConfig, scenario: str, model: str, r: int, i: int, steps_per_episode: int
+) -> dict:
+    """Collection trial i of round r in ``scenario``: push with ``model`` and noisy actions;
+    returns the executed steps cut into episodes of ``steps_per_episode`` and the trial's reset
+    seed."""
+    trial = draw_trial(load_scenario(scenario), cfg.collect_seed(r), i)
     episodes: list[dict[str, np.ndarray]] = []
     current: dict[str, Any] = {}
 
@@ -117,7 +132,7 @@ def record_trial(cfg: ImproveConfig, model: str, r: int, i: int, steps_per_episo
             current["rec"] = EpisodeRecorder(world, steps_per_episode, obs)
 
     push = PushConfig(
-        goal=tuple(trial["goal"]), scenario=cfg.scenario, model=model, planner=cfg.planner,
+        goal=tuple(trial["goal"]), scenario=scenario, model=model, planner=cfg.planner,
         seed=trial["reset_seed"], max_steps=cfg.max_steps, action_noise=cfg.action_noise,
     )  # fmt: skip
     result = run_push(push, on_transition=on_transition)
@@ -126,9 +141,11 @@ def record_trial(cfg: ImproveConfig, model: str, r: int, i: int, steps_per_episo
     return {"reset_seed": trial["reset_seed"], "episodes": episodes, **result.summary()}
 
 
-def collect(cfg: ImproveConfig, model: str, r: int, out: Path, *, jobs: Backend) -> dict:
-    """Record round r's closed-loop pushes as a dataset folder ``out``, the trials run on
-    ``jobs``; returns its manifest."""
+def collect(
+    cfg: ImproveConfig, scenario: str, model: str, r: int, out: Path, *, jobs: Backend
+) -> dict:
+    """Record round r's closed-loop pushes in ``scenario`` as a dataset folder ``out``, the
+    trials run on ``jobs``; returns its manifest."""
     from tqdm import tqdm
 
     from sim.datastore import read_manifest
@@ -138,12 +155,12 @@ def collect(cfg: ImproveConfig, model: str, r: int, out: Path, *, jobs: Backend)
         manifest = json.loads((out / MANIFEST).read_text())
         if manifest.get("complete"):
             return manifest
-    base = read_manifest(cfg.data)["identity"]
+    base = read_manifest(cfg.data[0])["identity"]
     T = base["steps_per_episode"]
-    heldout = {draw_trial(load_scenario(cfg.scenario), cfg.seed, i)["reset_seed"]
-               for i in range(cfg.heldout)}  # fmt: skip
-    args = [(cfg, model, r, i, T) for i in range(cfg.trials_per_round)]
-    bar = tqdm(total=len(args), unit="trial", desc=f"round {r}: collect")
+    world_cfg = load_scenario(scenario)
+    heldout = {draw_trial(world_cfg, cfg.seed, i)["reset_seed"] for i in range(cfg.heldout)}
+    args = [(cfg, scenario, model, r, i, T) for i in range(cfg.trials_per_round)]
+    bar = tqdm(total=len(args), unit="trial", desc=f"round {r}: collect in {world_cfg.name}")
     trials = []
     # in order: the bytes do not depend on the backend or the number of workers
     for t in run_jobs(record_trial, args, jobs, ordered=True):
@@ -160,11 +177,12 @@ def collect(cfg: ImproveConfig, model: str, r: int, out: Path, *, jobs: Backend)
     arrays["episode_index"] = np.arange(len(episodes), dtype=np.int64)
     out.mkdir(parents=True, exist_ok=True)
     digest = write_shard(out / "shard_00000.npz", arrays)
-    T_cam_world = PushWorld(load_scenario(cfg.scenario)).camera.T_cam_world
+    T_cam_world = PushWorld(world_cfg).camera.T_cam_world
     stats = merge_stats([episode_stats(ep, T_cam_world) for ep in episodes])
     stats["episodes"] = len(episodes)
     identity = {
         **base,
+        "scenario": json.loads(json.dumps(scenario_dict(world_cfg))),
         "seed": cfg.collect_seed(r),
         "episodes": len(episodes),
         "episodes_per_shard": len(episodes),
@@ -178,7 +196,9 @@ def collect(cfg: ImproveConfig, model: str, r: int, out: Path, *, jobs: Backend)
         },
     }
     if identity["control_layout"] != list(CONTROL_LAYOUT) or identity["format"] != DATA_FORMAT:
-        raise InputError(f"{cfg.data} was written by another version of this code; regenerate it")
+        raise InputError(
+            f"{cfg.data[0]} was written by another version of this code; regenerate it"
+        )
     manifest = {
         "identity": identity,
         "shards": {"shard_00000.npz": {"sha256": digest, **stats}},
@@ -193,7 +213,8 @@ def collect(cfg: ImproveConfig, model: str, r: int, out: Path, *, jobs: Backend)
 
 
 def finetune(cfg: ImproveConfig, init: str, data: list[str], out: Path) -> str:
-    """Fine-tune ``init`` on the pooled ``data`` into ``out``; returns the best checkpoint."""
+    """Fine-tune ``init`` on the pooled ``data`` (the exploration folders first, then the
+    planner-visited ones) into ``out``; returns the best checkpoint."""
     from se3net.checkpoint import model_config
     from se3net.train import TrainConfig, train
 
@@ -202,7 +223,7 @@ def finetune(cfg: ImproveConfig, init: str, data: list[str], out: Path) -> str:
         data=tuple(data), out=str(out), variant=net.variant, k=net.k, stride=net.stride,
         iters=cfg.finetune_iters, batch=cfg.batch, lr=cfg.lr, seed=cfg.seed,
         eval_every=min(cfg.eval_every, cfg.finetune_iters), rollout_steps=cfg.rollout_steps,
-        init=init, later_fraction=cfg.visited_fraction,
+        init=init, later_fraction=cfg.visited_fraction, later_from=len(cfg.data),
     )  # fmt: skip
     train(tcfg, resume=(out / "last.pt").exists())
     return str(out / "best.pt")
@@ -218,21 +239,25 @@ def run_improve(
 ) -> dict[str, Any]:
     """Run (or continue) the rounds, the closed-loop pushes on ``workers`` workers of
     ``backend`` (``sim.jobs``: the local pool, or Ray at ``address``); returns and writes the
-    per-round table."""
+    per-round, per-scenario table."""
     from se3net.checkpoint import load_checkpoint
     from sim.datastore import read_manifest, scenario_of
 
     jobs = worker_backend(workers, None, backend, address)
-    scenario = push_scenario(cfg.scenario)  # refuse what cannot work before writing anything
-    load_checkpoint(cfg.model, scenario=scenario)
-    if scenario_of(read_manifest(cfg.data)) != scenario:
-        raise InputError(f"{cfg.data} was not generated with scenario {cfg.scenario!r}")
+    # refuse what cannot work before writing anything
+    names = [push_scenario(s).name for s in cfg.measured()]
+    if len(set(names)) < len(names):
+        raise InputError(f"improve measures each scenario once; got {', '.join(names)}")
+    for s in cfg.measured():
+        load_checkpoint(cfg.model, scenario=push_scenario(s))
+    for d in cfg.data:
+        load_checkpoint(cfg.model, scenario=scenario_of(read_manifest(d)))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta = out / "config.json"
     if meta.exists():
         old, new = json.loads(meta.read_text()), json.loads(json.dumps(asdict(cfg)))
-        old.pop("rounds"), new.pop("rounds")  # more rounds continue a run
+        old.pop("rounds", None), new.pop("rounds")  # more rounds continue a run
         if old != new:
             raise InputError(
                 f"{out} holds another improve run ({'; '.join(differences(old, new))}); "
@@ -240,24 +265,34 @@ def run_improve(
             )
     atomic_write_json(meta, asdict(cfg))
 
-    def heldout(model: str, r: int) -> dict[str, Any]:
-        tcfg = TrialsConfig(
-            scenario=cfg.scenario, n=cfg.heldout, model=model, planner=cfg.planner,
-            seed=cfg.seed, max_steps=cfg.max_steps,
-        )  # fmt: skip
-        summary = run_trials(tcfg, out / f"round_{r}" / "heldout", workers=workers,
-                             backend=backend, address=address)  # fmt: skip
-        figures = {k: v for k, v in summary.items() if k != "config"}
-        return {"round": r, "model": portable_path(model), **figures}
+    def heldout(model: str, r: int) -> list[dict[str, Any]]:
+        rows = []
+        for scenario, name in zip(cfg.measured(), names, strict=True):
+            tcfg = TrialsConfig(
+                scenario=scenario, n=cfg.heldout, model=model, planner=cfg.planner,
+                seed=cfg.seed, max_steps=cfg.max_steps,
+            )  # fmt: skip
+            summary = run_trials(tcfg, out / f"round_{r}" / "heldout" / name, workers=workers,
+                                 backend=backend, address=address)  # fmt: skip
+            figures = {k: v for k, v in summary.items() if k != "config"}
+            rows.append({"round": r, "scenario": name, "model": portable_path(model), **figures})
+        return rows
 
-    rows = [heldout(cfg.model, 0)]
-    model, data = cfg.model, [cfg.data]
+    rows = heldout(cfg.model, 0)
+    model, data = cfg.model, list(cfg.data)
     for r in range(1, cfg.rounds + 1):
-        manifest = collect(cfg, model, r, out / f"round_{r}" / "data", jobs=jobs)
-        data.append(str(out / f"round_{r}" / "data"))
+        new_episodes = {}
+        for scenario, name in zip(cfg.scenarios, names[: len(cfg.scenarios)], strict=True):
+            folder = out / f"round_{r}" / "data" / name
+            manifest = collect(cfg, scenario, model, r, folder, jobs=jobs)
+            data.append(str(folder))
+            new_episodes[name] = manifest["identity"]["episodes"]
         model = finetune(cfg, model, data, out / f"round_{r}" / "model")
-        rows.append({**heldout(model, r), "new_episodes": manifest["identity"]["episodes"]})
-    paths = {"model": portable_path(cfg.model), "data": portable_path(cfg.data)}
+        rows += [
+            {**row, "new_episodes": new_episodes.get(row["scenario"], 0)}
+            for row in heldout(model, r)
+        ]
+    paths = {"model": portable_path(cfg.model), "data": [portable_path(d) for d in cfg.data]}
     result = {"config": {**asdict(cfg), **paths}, "rounds": rows}
     atomic_write_json(out / "improve.json", result)
     atomic_write_bytes(out / "improve.md", table_markdown(rows).encode())
@@ -266,56 +301,67 @@ def run_improve(
 
 
 def table_markdown(rows: list[dict[str, Any]]) -> str:
-    """Success and diagnostics per round on the held-out trials."""
+    """Success and diagnostics per round and scenario on the held-out trials."""
     lines = [
-        "| round | new episodes | success 2 cm/10° [95 % CI] | success 5 cm/20° | phantom | "
-        "missed | progress ratio | median steps |",
-        "|---" * 8 + "|",
+        "| round | scenario | new episodes | success 2 cm/10° [95 % CI] | success 5 cm/20° | "
+        "phantom | missed | progress ratio | median steps | other objects moved |",
+        "|---" * 10 + "|",
     ]
     for r in rows:
         c = summary_cells(r)
         lines.append(
-            f"| {r['round']} | {r.get('new_episodes', '–')} | {c['tight']} | "
+            f"| {r['round']} | {r['scenario']} | {r.get('new_episodes', '–')} | {c['tight']} | "
             f"{r['success_loose']:.0%} | {c['phantom']} | {c['missed']} | {c['progress']} | "
-            f"{r['median_steps']:.0f} |"
+            f"{r['median_steps']:.0f} | {c['disturbance']} |"
         )
     return "\n".join(lines) + "\n"
 
 
 def plot_rounds(rows: list[dict[str, Any]], out: Path) -> None:
-    """Success (with its interval) and the diagnostics against the round, with the aims:
-    phantom and missed motion under 5 %, predicted/actual progress within 0.8-1.25."""
+    """Per scenario against the round: success (tight, with its interval, and loose), the
+    diagnostics with their aims (phantom and missed motion under 5 %), and the predicted/actual
+    progress (aim 0.8-1.25)."""
     from sim.render import pyplot, save_figure
 
     plt = pyplot()
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
-    x = [r["round"] for r in rows]
-    for key, label in (("success_tight", "2 cm, 10°"), ("success_loose", "5 cm, 20°")):
-        y = np.array([r[key] for r in rows])
-        ci = np.array([r[f"{key}_ci95"] for r in rows])
-        a.errorbar(x, y, yerr=[y - ci[:, 0], ci[:, 1] - y], marker="o", capsize=3, label=label)
+    fig, (a, b, c) = plt.subplots(1, 3, figsize=(15, 4))
+    scenarios = list(dict.fromkeys(r["scenario"] for r in rows))
+
+    def diag(sub: list[dict[str, Any]], key: str) -> np.ndarray:
+        return np.array(
+            [np.nan if r["diagnostics"][key] is None else r["diagnostics"][key] for r in sub]
+        )
+
+    for j, name in enumerate(scenarios):
+        sub = [r for r in rows if r["scenario"] == name]
+        x = [r["round"] + 0.05 * (j - (len(scenarios) - 1) / 2) for r in sub]
+        colour = f"C{j}"
+        y = np.array([r["success_tight"] for r in sub])
+        ci = np.array([r["success_tight_ci95"] for r in sub])
+        a.errorbar(x, y, yerr=[y - ci[:, 0], ci[:, 1] - y], marker="o", capsize=3, color=colour,
+                   label=f"{name}, 2 cm & 10°")  # fmt: skip
+        a.plot(x, [r["success_loose"] for r in sub], ls="--", marker=".", color=colour,
+               label=f"{name}, 5 cm & 20°")  # fmt: skip
+        b.plot(x, 100 * diag(sub, "phantom_rate"), marker="o", color=colour,
+               label=f"{name}, phantom")  # fmt: skip
+        b.plot(x, 100 * diag(sub, "missed_rate"), marker="s", ls="--", color=colour,
+               label=f"{name}, missed")  # fmt: skip
+        c.plot(x, diag(sub, "progress_ratio"), marker="^", color=colour, label=name)
     a.set_ylabel("held-out success")
     a.set_ylim(-0.05, 1.05)
-    a.legend()
-
-    def diag(key: str) -> list[float]:
-        return [np.nan if r["diagnostics"][key] is None else r["diagnostics"][key] for r in rows]
-
-    b.plot(x, 100 * np.array(diag("phantom_rate")), marker="o", label="phantom motion")
-    b.plot(x, 100 * np.array(diag("missed_rate")), marker="s", label="missed motion")
     b.axhline(5.0, color="grey", ls=":", lw=0.8)
     b.set_ylabel("% of executed steps (aim < 5 %)")
-    b.set_ylim(0, max(10.0, 100 * np.nanmax(diag("phantom_rate") + diag("missed_rate")) + 1))
-    c = b.twinx()
+    worst = np.nanmax(
+        np.concatenate([100 * diag(rows, "phantom_rate"), 100 * diag(rows, "missed_rate"), [0.0]])
+    )
+    b.set_ylim(0, max(10.0, worst + 1))
     c.axhspan(0.8, 1.25, color="green", alpha=0.08)
-    c.plot(x, diag("progress_ratio"), marker="^", color="green", label="predicted/actual progress")
     c.set_ylabel("predicted/actual progress (aim 0.8-1.25)")
     c.set_ylim(0, 2)
-    lines = b.get_legend_handles_labels()
-    more = c.get_legend_handles_labels()
-    b.legend(lines[0] + more[0], lines[1] + more[1], loc="upper left", fontsize=8)
-    for ax in (a, b):
+    rounds = sorted({r["round"] for r in rows})
+    for ax in (a, b, c):
         ax.set_xlabel("round")
-        ax.set_xticks(x)
+        ax.set_xticks(rounds)
+        ax.legend(fontsize=7)
     fig.suptitle("planner-visited data: held-out trials per round")
     save_figure(fig, out)

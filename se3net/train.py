@@ -80,8 +80,11 @@ class TrainConfig:
     init: str | None = None
     """checkpoint whose weights (and normalisation) the run starts from"""
     later_fraction: float = 0.0
-    """share of each batch drawn from the second and later data folders (planner-visited
-    data, a small pool beside the exploration data); 0: every example equally likely"""
+    """share of each batch drawn from the later data folders (planner-visited data, a small
+    pool beside the exploration data); 0: every example equally likely"""
+    later_from: int = 1
+    """index of the first of the later data folders (1: the second and later; 2 when two
+    exploration folders come first)"""
     stride: int = 1
     """the network sees every stride-th pixel of the camera's image in each direction (2: a
     32x32 planning-resolution model of 64x64 data, about 4x fewer pixels a prediction)"""
@@ -108,8 +111,15 @@ class TrainConfig:
             raise InputError(f"--lr must be positive, got {self.lr}")
         if not 0.0 <= self.later_fraction < 1.0:
             raise InputError(f"--later-fraction must be in [0, 1), got {self.later_fraction}")
-        if self.later_fraction > 0 and isinstance(self.data, str | Path):
-            raise InputError("--later-fraction needs more than one --data folder")
+        if self.later_from < 1:
+            raise InputError(f"--later-from must be positive, got {self.later_from}")
+        folders = 1 if isinstance(self.data, str | Path) else len(self.data)
+        if self.later_fraction > 0 and folders <= self.later_from:
+            raise InputError(
+                f"--later-fraction draws from the --data folders after the first "
+                f"{self.later_from}, and there are {folders}: give more folders or a lower "
+                "--later-from"
+            )
         if self.loss not in LOSSES:
             raise InputError(f"--loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
         paper_noise(self.noise)
@@ -124,7 +134,9 @@ class TrainConfig:
         }
 
 
-_LATER_SETTINGS = ("stride", "loss", "noise", "controls", "valid_channel", "full_res_head")
+_LATER_SETTINGS = (
+    "stride", "loss", "noise", "controls", "valid_channel", "full_res_head", "later_from"
+)  # fmt: skip
 """settings added after runs were made: a run that has none ran at its default"""
 
 
@@ -222,11 +234,11 @@ def draw_batch(ds: PushDataset, cfg: TrainConfig, rng: np.random.Generator) -> n
     drawn from the later data folders, so a small pool of planner-visited steps is seen."""
     if cfg.later_fraction == 0:
         return rng.integers(len(ds), size=cfg.batch)
-    later = np.flatnonzero(ds.source > 0)
+    later = np.flatnonzero(ds.source >= cfg.later_from)
     if len(later) == 0:
         raise DataError("--later-fraction: the later --data folders have no training examples")
     n_later = round(cfg.later_fraction * cfg.batch)
-    first = np.flatnonzero(ds.source == 0)
+    first = np.flatnonzero(ds.source < cfg.later_from)
     return np.concatenate(
         [first[rng.integers(len(first), size=cfg.batch - n_later)],
          later[rng.integers(len(later), size=n_later)]]

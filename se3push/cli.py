@@ -83,8 +83,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
         lr=args.lr, seed=args.seed, device=args.device, k=args.k,
         eval_every=args.eval_every, keep_every=args.keep_every,
         rollout_steps=args.rollout_steps, init=args.init, later_fraction=args.later_fraction,
-        stride=args.stride, loss=args.loss, noise=args.noise, controls=args.controls,
-        valid_channel=args.valid_channel, full_res_head=args.full_res_head,
+        later_from=args.later_from, stride=args.stride, loss=args.loss, noise=args.noise,
+        controls=args.controls, valid_channel=args.valid_channel, full_res_head=args.full_res_head,
     )  # fmt: skip
     try:
         figures = train(cfg, resume=args.resume)
@@ -163,9 +163,17 @@ def _diagnostics_line(s: dict) -> str:
     )
 
 
-def _closed_loop_options(s: argparse.ArgumentParser, *, seed_help: str) -> None:
-    """The options every command that runs closed-loop trials shares."""
-    s.add_argument("--scenario", default="single_box", help="scenario name or TOML path")
+def _closed_loop_options(
+    s: argparse.ArgumentParser,
+    *,
+    seed_help: str,
+    scenario_help: str = "scenario name or TOML path",
+    several: bool = False,
+) -> None:
+    """The options every command that runs closed-loop trials shares (``several``: the
+    command takes one or more scenarios)."""
+    s.add_argument("--scenario", default=["single_box"] if several else "single_box",
+                   nargs="+" if several else None, help=scenario_help)  # fmt: skip
     s.add_argument("--seed", type=int, default=0, help=seed_help)
     s.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
     s.add_argument("--max-steps", type=int, default=60, help="control steps per trial")
@@ -253,7 +261,8 @@ def _cmd_improve(args: argparse.Namespace) -> int:
     from planner.improve import ImproveConfig, run_improve
 
     cfg = ImproveConfig(
-        scenario=args.scenario, model=args.model, data=args.data, rounds=args.rounds,
+        scenarios=tuple(args.scenario), model=args.model, data=tuple(args.data),
+        measure_only=tuple(args.measure_only), rounds=args.rounds,
         trials_per_round=args.trials_per_round, heldout=args.heldout, seed=args.seed,
         action_noise=args.action_noise, finetune_iters=args.finetune_iters,
         rollout_steps=args.rollout_steps, lr=args.lr, planner=args.planner,
@@ -343,7 +352,14 @@ def _parser() -> argparse.ArgumentParser:
         "--later-fraction",
         type=float,
         default=0.0,
-        help="share of each batch drawn from the second and later --data folders (0: uniform)",
+        help="share of each batch drawn from the later --data folders (0: uniform)",
+    )
+    s.add_argument(
+        "--later-from",
+        type=int,
+        default=1,
+        help="the later --data folders start at this index (1: the second; 2 when two "
+        "exploration folders come first)",
     )
     s.add_argument(
         "--stride",
@@ -419,12 +435,23 @@ def _parser() -> argparse.ArgumentParser:
     s.set_defaults(run=_cmd_study)
 
     s = sub.add_parser("improve", help="rounds of planner-visited data and fine-tuning")
-    _closed_loop_options(s, seed_help="seed of the held-out trial set")
+    _closed_loop_options(
+        s, seed_help="seed of the held-out trial sets", several=True,
+        scenario_help="scenario names or TOML paths: pushes are collected in each and every "
+        "round is measured on each",
+    )  # fmt: skip
     s.add_argument("--model", required=True, help="starting checkpoint ('default': shipped)")
-    s.add_argument("--data", required=True, help="the exploration data the model was trained on")
+    s.add_argument("--data", required=True, nargs="+",
+                   help="the exploration data folder(s) the model was trained on")  # fmt: skip
+    s.add_argument(
+        "--measure-only", nargs="*", default=[],
+        help="scenarios measured every round but never collected in (held-out objects)",
+    )  # fmt: skip
     s.add_argument("--rounds", type=int, default=3)
-    s.add_argument("--trials-per-round", type=int, default=20, help="pushes recorded per round")
-    s.add_argument("--heldout", type=int, default=50, help="held-out trials measuring each round")
+    s.add_argument("--trials-per-round", type=int, default=20,
+                   help="pushes recorded per round in each --scenario")  # fmt: skip
+    s.add_argument("--heldout", type=int, default=50,
+                   help="held-out trials per scenario measuring each round")  # fmt: skip
     s.add_argument(
         "--action-noise",
         type=float,

@@ -1,10 +1,12 @@
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 import planner.improve as improve_mod
+import scenarios
 from planner.improve import ImproveConfig, run_improve
 from planner.trials import draw_trial
 from se3net.checkpoint import read_checkpoint
@@ -24,7 +26,7 @@ def start_model(tiny_data, tmp_path_factory):
 
 
 def _cfg(tiny_data, start_model, **kw):
-    base = dict(scenario="tiny", model=start_model, data=str(tiny_data), rounds=1,
+    base = dict(scenarios="tiny", model=start_model, data=str(tiny_data), rounds=1,
                 trials_per_round=2, heldout=2, max_steps=3, finetune_iters=2, eval_every=2,
                 batch=4)  # fmt: skip
     return ImproveConfig(**{**base, **kw})
@@ -35,7 +37,7 @@ def test_a_round_adds_exact_planner_episodes_and_leaves_the_heldout_set_alone(
 ):
     cfg = _cfg(tiny_data, start_model)
     result = run_improve(cfg, tmp_path / "imp")
-    data = tmp_path / "imp" / "round_1" / "data"
+    data = tmp_path / "imp" / "round_1" / "data" / "tiny"
     manifest = read_manifest(data)
     eps = load_episodes(data).arrays
     steps = int(eps["length"].sum())
@@ -60,7 +62,7 @@ def test_a_round_adds_exact_planner_episodes_and_leaves_the_heldout_set_alone(
     heldout = {draw_trial(tiny, 0, i)["reset_seed"] for i in range(cfg.heldout)}
     assert not heldout & {c["reset_seed"] for c in manifest["collection"]}
     lines = [
-        [json.loads(x)["goal"] for x in (tmp_path / "imp" / f"round_{r}" / "heldout" /
+        [json.loads(x)["goal"] for x in (tmp_path / "imp" / f"round_{r}" / "heldout" / "tiny" /
                                          "trials.jsonl").read_text().splitlines()]
         for r in (0, 1)
     ]  # fmt: skip
@@ -107,9 +109,68 @@ def test_ray_collects_the_same_bytes_as_the_local_pool(ray_local, tiny_data, tmp
 
     cfg = _cfg(tiny_data, "oracle")
     for name, jobs in (("local", Backend()), ("ray", Backend("ray", 2))):
-        improve_mod.collect(cfg, "oracle", 1, tmp_path / name, jobs=jobs)
+        improve_mod.collect(cfg, "tiny", "oracle", 1, tmp_path / name, jobs=jobs)
     a, b = (read_manifest(tmp_path / n)["shards"] for n in ("local", "ray"))
     assert a["shard_00000.npz"]["sha256"] == b["shard_00000.npz"]["sha256"]
     assert (tmp_path / "ray" / "shard_00000.npz").read_bytes() == (
         tmp_path / "local" / "shard_00000.npz"
     ).read_bytes()
+
+
+def test_rounds_over_several_scenarios_collect_in_each_and_measure_the_held_out_one_too(
+    tiny_data, start_model, tmp_path, monkeypatch
+):
+    """Pushes are collected in every --scenario (each folder with its own scenario's objects),
+    the --measure-only scenario is measured every round and never collected in, and the
+    fine-tuning pools every exploration folder and draws the visited share from the rest."""
+    from scenarios import load_scenario
+    from sim.datastore import scenario_of
+
+    text = (Path(scenarios.__file__).parent / "tiny.toml").read_text()
+    cylinder, heavy = tmp_path / "tiny_cylinder.toml", tmp_path / "tiny_heavy.toml"
+    cylinder.write_text(text.replace('shapes = ["box"]', 'shapes = ["cylinder"]'))
+    heavy.write_text(text.replace("mass_kg = [0.2, 0.2]", "mass_kg = [0.4, 0.4]"))
+    assert load_scenario(str(cylinder)).objects.shapes == ("cylinder",)
+    exploration = (str(tiny_data), str(tiny_data))
+    cfg = _cfg(tiny_data, start_model, scenarios=("tiny", str(cylinder)), data=exploration,
+               measure_only=(str(heavy),), trials_per_round=1, heldout=1)  # fmt: skip
+    pooled = []
+    real_finetune = improve_mod.finetune
+    monkeypatch.setattr(improve_mod, "finetune",
+                        lambda c, init, data, out: pooled.append(list(data)) or
+                        real_finetune(c, init, data, out))  # fmt: skip
+    result = run_improve(cfg, tmp_path / "imp")
+    root = tmp_path / "imp"
+    for name, shape in (("tiny", "box"), ("tiny_cylinder", "cylinder")):
+        manifest = read_manifest(root / "round_1" / "data" / name)
+        assert scenario_of(manifest).objects.shapes == (shape,)
+        assert manifest["stats"]["mode_steps"][PLANNER_MODE] > 0
+    assert not (root / "round_1" / "data" / "tiny_heavy").exists()
+    visited = [str(root / "round_1" / "data" / n) for n in ("tiny", "tiny_cylinder")]
+    assert pooled == [[*exploration, *visited]]
+    run = read_checkpoint(root / "round_1" / "model" / "last.pt")["train_state"]["config"]
+    assert run["later_from"] == 2 and run["later_fraction"] == cfg.visited_fraction
+    names = ["tiny", "tiny_cylinder", "tiny_heavy"]
+    assert [(r["round"], r["scenario"]) for r in result["rounds"]] == [
+        (r, n) for r in (0, 1) for n in names
+    ]
+    assert [r.get("new_episodes") for r in result["rounds"][3:]] == [
+        read_manifest(root / "round_1" / "data" / "tiny")["identity"]["episodes"],
+        read_manifest(root / "round_1" / "data" / "tiny_cylinder")["identity"]["episodes"],
+        0,
+    ]
+    for r in (0, 1):
+        for n in names:
+            assert len((root / f"round_{r}" / "heldout" / n / "trials.jsonl").read_text()
+                       .splitlines()) == 1  # fmt: skip
+    table = (root / "improve.md").read_text()
+    assert table.count("\n| ") == 6 and "| tiny_heavy |" in table
+
+
+def test_the_same_scenario_twice_is_refused_before_anything_is_written(
+    tiny_data, start_model, tmp_path
+):
+    cfg = _cfg(tiny_data, start_model, scenarios=("tiny",), measure_only=("tiny",))
+    with pytest.raises(ValueError, match="each scenario once"):
+        run_improve(cfg, tmp_path / "imp")
+    assert not (tmp_path / "imp").exists()

@@ -236,10 +236,29 @@ def test_later_fraction_draws_that_share_of_each_batch_from_the_later_folders(ti
         [draw_batch(ds, _cfg(tiny_data, tmp_path, data=both, batch=8), rng) for _ in range(50)]
     )
     assert 140 < (ds.source[uniform] == 1).sum() < 260
-    with pytest.raises(InputError, match="more than one --data folder"):
+    with pytest.raises(InputError, match="after the first 1, and there are 1"):
         _cfg(tiny_data, tmp_path, later_fraction=0.5)
     with pytest.raises(InputError, match=r"--later-fraction must be in \[0, 1\)"):
         _cfg(tiny_data, tmp_path, data=both, later_fraction=1.0)
+
+
+def test_later_from_keeps_several_exploration_folders_out_of_the_later_share(tiny_data, tmp_path):
+    """Two exploration folders, then the planner-visited one: the later share is drawn from the
+    third folder alone, the rest from the first two (both of them)."""
+    from se3net.train import draw_batch
+
+    three = (str(tiny_data),) * 3
+    ds = PushDataset(list(three), split="train")
+    cfg = _cfg(tiny_data, tmp_path, data=three, batch=8, later_fraction=0.25, later_from=2)
+    rng = np.random.default_rng(0)
+    drawn = np.concatenate([draw_batch(ds, cfg, rng) for _ in range(50)])
+    counts = np.bincount(ds.source[drawn], minlength=3)
+    assert counts[2] == 100  # exactly 2 of every 8
+    assert counts[0] > 100 and counts[1] > 100  # the other 6 from both exploration folders
+    with pytest.raises(InputError, match="after the first 3, and there are 3"):
+        _cfg(tiny_data, tmp_path, data=three, later_fraction=0.25, later_from=3)
+    with pytest.raises(InputError, match="--later-from must be positive"):
+        _cfg(tiny_data, tmp_path, data=three, later_from=0)
 
 
 def test_runs_have_no_horizon_setting_and_old_runs_with_the_inert_one_resume(tiny_data, tmp_path):

@@ -193,7 +193,7 @@ def test_train_and_eval_bad_input_is_exit_code_2(tiny_data, tmp_path, capsys):
             ["improve", "--model", "default", "--visited-fraction", "1"],
             "--visited-fraction must be in [0, 1), got 1.0",
         ),
-        (["train", "--later-fraction", "0.5"], "--later-fraction needs more than one --data"),
+        (["train", "--later-fraction", "0.5"], "after the first 1, and there are 1: give more"),
         (["train", "--noise", "loud"], "--noise must be one of none, depth-scaled, depth, assoc-9"),
         (["train", "--loss", "l1"], "--loss must be one of moving, split"),
         (["train", "--controls", "tiled"], "controls must be one of fused, film"),
