@@ -379,7 +379,10 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
                 "world_size": ranks.world,
             }
         folders = [cfg.data] if isinstance(cfg.data, str | Path) else cfg.data
-        extra = {"iteration": it, "data": [portable_path(d) for d in folders], **figures}
+        extra = {
+            "iteration": it, "data": [portable_path(d) for d in folders], "loss": cfg.loss,
+            **figures,
+        }  # fmt: skip
         save_checkpoint(
             path, model, scenario=ds.scenario, data_hash=data_hash, extra=extra, train_state=state
         )

@@ -174,3 +174,19 @@ def test_the_same_scenario_twice_is_refused_before_anything_is_written(
     with pytest.raises(ValueError, match="each scenario once"):
         run_improve(cfg, tmp_path / "imp")
     assert not (tmp_path / "imp").exists()
+
+
+def test_finetuning_keeps_the_starting_network_and_its_loss(tiny_data, tmp_path):
+    """A model with FiLM controls, a validity channel and the split loss is fine-tuned as
+    that network with that loss (the defaults would build another network, which init
+    refuses)."""
+    start = tmp_path / "start"
+    train(TrainConfig(data=str(tiny_data), out=str(start), iters=2, batch=4, eval_every=2,
+                      val_examples=8, k=3, controls="film", valid_channel=True, loss="split"),
+          progress=False)  # fmt: skip
+    cfg = _cfg(tiny_data, str(start / "best.pt"), data=(str(tiny_data), str(tiny_data)))
+    best = improve_mod.finetune(cfg, str(start / "best.pt"), list(cfg.data) * 2, tmp_path / "ft")
+    blob = read_checkpoint(best)
+    assert blob["model"]["controls"] == "film" and blob["model"]["valid_channel"] is True
+    run = read_checkpoint(tmp_path / "ft" / "last.pt")["train_state"]["config"]
+    assert run["loss"] == "split" and run["init"] == str(start / "best.pt")
