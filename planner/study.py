@@ -85,11 +85,13 @@ class StudyConfig:
 
 def parse_models(models: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:
     """(label, model) pairs: ``LABEL=PATH`` as given, else a label from the name or path."""
+    from se3net.checkpoint import resolve_model
+
     out = []
     for m in models:
         if "=" in m:
             label, model = m.split("=", 1)
-        elif m in BACKEND_MODELS or m == "default":
+        elif m in BACKEND_MODELS or resolve_model(m) != Path(m):  # a shipped model by name
             label, model = m, m
         else:
             p = Path(m)

@@ -39,8 +39,11 @@ def test_rank_correlation_on_hand_made_models():
 
 
 def test_model_labels_and_bad_settings():
-    assert parse_models(["oracle", "a=runs/x/best.pt", "runs/y/iter_000100.pt"]) == [
+    shipped = ["default", "single_box_64"]
+    assert parse_models(["oracle", *shipped, "a=runs/x/best.pt", "runs/y/iter_000100.pt"]) == [
         ("oracle", "oracle"),
+        ("default", "default"),
+        ("single_box_64", "single_box_64"),
         ("a", "runs/x/best.pt"),
         ("y/iter_000100", "runs/y/iter_000100.pt"),
     ]
