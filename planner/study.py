@@ -220,14 +220,31 @@ def rank_correlations(rows: list[dict[str, Any]], success_key: str = "success_ti
     return out
 
 
-def finding(corr: dict[str, float | None], n_models: int, who: str = "models") -> str:
-    """The study's result in plain words (ties named together)."""
+def measure_counts(rows: list[dict[str, Any]]) -> dict[str, int]:
+    """How many of the models have each accuracy measure (a flow net has no masks)."""
+    return {k: sum(r.get(k) is not None for r in rows) for k in ACCURACY}
+
+
+def finding(
+    corr: dict[str, float | None],
+    n_models: int,
+    who: str = "models",
+    covered: dict[str, int] | None = None,
+) -> str:
+    """The study's result in plain words (ties named together); a measure that ``covered``
+    (:func:`measure_counts`) says only some models have is named with how many."""
     known = {k: v for k, v in corr.items() if v is not None}
+    covered = covered or {}
+
+    def name(k: str) -> str:
+        n = covered.get(k, n_models)
+        return ACCURACY[k][0] + ("" if n == n_models else f" (the {n} with one)")
+
     if not known:
         return f"Over {n_models} {who}: too few, or no variation in success, to rank the measures."
     top = max(known.values())
-    best = [ACCURACY[k][0] for k, v in known.items() if v > top - 1e-9]
-    order = ", ".join(f"{ACCURACY[k][0]} {v:+.2f}" for k, v in
+    best = [name(k) for k, v in known.items() if v > top - 1e-9]
+    order = ", ".join(f"{name(k)} {v:+.2f}" for k, v in
                       sorted(known.items(), key=lambda kv: -kv[1]))  # fmt: skip
     verb = (
         "predicts closed-loop success best"
@@ -325,9 +342,14 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
         "rows": rows,
         "rank_correlation_with_success": corr,
         "rank_correlation_learned_only": corr_learned,
-        "finding": finding(corr, len(rows))
+        "finding": finding(corr, len(rows), covered=measure_counts(rows))
         + " "
-        + finding(corr_learned, len(learned), "learned models alone (no oracle, no-motion)"),
+        + finding(
+            corr_learned,
+            len(learned),
+            "learned models alone (no oracle, no-motion)",
+            covered=measure_counts(learned),
+        ),  # fmt: skip
     }
     atomic_write_json(out / "study.json", result)
     text = (

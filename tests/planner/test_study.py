@@ -6,6 +6,7 @@ from planner.study import (
     ACCURACY,
     StudyConfig,
     finding,
+    measure_counts,
     parse_models,
     rank_correlations,
     run_study,
@@ -36,6 +37,10 @@ def test_rank_correlation_on_hand_made_models():
     assert "predict closed-loop success best, tied" in words  # ratio and IoU tie at +1
     assert ACCURACY["iou"][0] in words and ACCURACY["ratio_to_no_motion"][0] in words
     assert "predicts closed-loop" in finding({**corr, "iou": 0.5}, 4)
+    # a measure only some models have says over how many it ranks
+    words = finding(corr, 4, covered=measure_counts(rows))
+    assert f"{ACCURACY['iou'][0]} (the 3 with one) +1.00" in words
+    assert f"{ACCURACY['ratio_to_no_motion'][0]} +1.00" in words
 
 
 def test_model_labels_and_bad_settings():
