@@ -253,11 +253,12 @@ def run_improve(
 
     jobs = worker_backend(workers, None, backend, address)
     # refuse what cannot work before writing anything
-    names = [push_scenario(s).name for s in cfg.measured()]
+    measured = [push_scenario(s) for s in cfg.measured()]
+    names = [s.name for s in measured]
     if len(set(names)) < len(names):
         raise InputError(f"improve measures each scenario once; got {', '.join(names)}")
-    for s in cfg.measured():
-        load_checkpoint(cfg.model, scenario=push_scenario(s))
+    for scenario in measured:
+        load_checkpoint(cfg.model, scenario=scenario)
     for d in cfg.data:
         load_checkpoint(cfg.model, scenario=scenario_of(read_manifest(d)))
     out = Path(out)
