@@ -104,3 +104,59 @@ def test_the_disturbance_term_keeps_the_other_objects_in_place():
         moved[w] = float((end - state.other_poses[0, :2]).norm())
         assert info.predicted_poses[-1, 0] > 0.08  # it pushes its object toward the goal
     assert moved[0.0] > 0.03 and moved[1.0] < 0.005, moved
+
+
+def _rollouts(pusher_end, object_end):
+    """Two-step rollouts (K=len(object_end)) whose pusher ends at ``pusher_end`` and whose
+    object ends at each of ``object_end``."""
+    from planner.dynamics import Rollout
+
+    K = len(object_end)
+    ends = torch.tensor(object_end, dtype=torch.float32)
+    poses = torch.stack([torch.zeros(K, 3), torch.cat([ends, torch.zeros(K, 1)], 1)], 1)
+    pusher = torch.tensor(pusher_end, dtype=torch.float32).expand(K, 2, 2)
+    return Rollout(poses, pusher), torch.zeros(K, 2, 2)
+
+
+@pytest.mark.parametrize(
+    "pusher, in_position",
+    [((0.10, 0.0), False), ((0.0, 0.12), False), ((-0.075, 0.01), True)],
+)
+def test_predicted_motion_fades_the_shaping_only_once_the_pusher_is_in_position(
+    pusher, in_position
+):
+    """Goal along +x. A pusher on the goal's side, or beside the object, must go round it
+    whatever the model predicts: phantom motion (the object predicted to move 1 cm sideways,
+    the pusher ending far from where the shaping draws it) costs more than no motion. Behind
+    the object, predicted motion means a push is under way and the shaping fades."""
+    scenario = load_scenario("single_box")
+    world = PushWorld(scenario)
+    world.reset(0)
+    cost = PushCost(scenario, torch.tensor([0.2, 0.0, 0.0]))
+    state = _state(world.objects[0], pusher)
+    assert cost.in_position(state) is in_position
+    rollout, actions = _rollouts((-0.25, -0.2), [(0.0, 0.0), (0.0, 0.01)])
+    still, moved = cost.cost(state, rollout, actions, last_action=torch.zeros(2)).tolist()
+    if in_position:
+        assert moved < 0.5 * still
+    else:
+        assert moved > still
+
+
+def test_far_from_the_goal_a_millimetre_weighs_about_as_much_as_near_it():
+    """The pose cost is linear beyond a scale of the goal: the cost of 1 mm more error at
+    15 cm is not five times that at 3 cm (as a quadratic cost made it, so that a learned
+    model's millimetres of phantom motion outweighed the pusher's way round the object
+    far from the goal); within the scale it stays quadratic (half the error, a quarter of
+    the cost)."""
+    scenario = load_scenario("single_box")
+    world = PushWorld(scenario)
+    world.reset(0)
+    cost = PushCost(scenario, torch.tensor([0.0, 0.0, 0.0]))
+    state = _state(world.objects[0], (0.0, 0.0))  # the pusher on the object: shaping inert here
+    errors = [0.003, 0.006, 0.03, 0.031, 0.15, 0.151]
+    rollout, actions = _rollouts((0.0, 0.0), [(e, 0.0) for e in errors])
+    c = cost.cost(state, rollout, actions, last_action=torch.zeros(2)).tolist()
+    near, mid, far = c[1] / c[0], c[3] - c[2], c[5] - c[4]
+    assert 3.8 < near < 4.05
+    assert far < 1.5 * mid
