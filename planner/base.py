@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -65,19 +65,6 @@ class PlannerConfig:
     step), and the plan is the best sequence any of them reached"""
     trust_radius: float = 0.05
     """SQP: initial trust region on each action change (m/s)"""
-    model_trust_rate: float = 0.5
-    """how fast the planner's trust in its model's predicted object motion follows what the
-    last executed step did: after a step the model predicted to move the object by over
-    ``model_trust_min_m``, the trust moves this far toward the share of the predicted
-    motion that happened (0 to 1); the planner scales every predicted object motion by its
-    trust. 0: full trust always"""
-    model_trust_recover: float = 0.25
-    """after a step the model predicted (almost) no motion for, the trust moves this far back
-    toward full"""
-    model_trust_floor: float = 0.05
-    """the trust never falls below this"""
-    model_trust_min_m: float = 0.001
-    """predicted motion of the executed step below which it says nothing of the trust (m)"""
     seed: int = 0
     """seed of the planner's generator"""
 
@@ -101,14 +88,6 @@ class PlannerConfig:
         for name in ("init_std", "min_std", "temperature", "grad_lr", "trust_radius"):
             if not getattr(self, name) > 0:
                 raise InputError(f"{name} must be positive, got {getattr(self, name)}")
-        for name in ("model_trust_rate", "model_trust_recover", "model_trust_floor"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise InputError(f"{name} must be in [0, 1], got {getattr(self, name)}")
-        if not self.model_trust_floor > 0 or not self.model_trust_min_m >= 0:
-            raise InputError(
-                f"model_trust_floor must be positive and model_trust_min_m >= 0, got "
-                f"{self.model_trust_floor} and {self.model_trust_min_m}"
-            )
         if self.warm_std is not None and not self.warm_std > 0:
             raise InputError(f"warm_std must be positive or None, got {self.warm_std}")
 
@@ -132,15 +111,12 @@ class PlanInfo:
     actions: np.ndarray
     """(H,2) the chosen sequence"""
     predicted_poses: np.ndarray
-    """(H,3) the object poses the backend predicts for it (before the planner's trust scales
-    the motion)"""
+    """(H,3) the object poses the backend predicts for it"""
     predicted_pusher: np.ndarray
     """(H,2) the pusher positions it predicts"""
     cost: float
     iterations: int
     wall_ms: float
-    model_trust: float = 1.0
-    """the share of the predicted object motion the planner believed (``PlannerConfig``)"""
 
 
 class Best:
@@ -185,51 +161,17 @@ class Planner:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the warm start and what the model got right (a new episode)."""
+        """Forget the warm start (a new episode)."""
         self.nominal = torch.zeros(self.cfg.horizon, 2)
         self.last_action = torch.zeros(2)  # the action executed before this plan
         self.gen.manual_seed(self.cfg.seed)
-        self.model_trust = 1.0
-        self.expected: tuple[np.ndarray, np.ndarray] | None = None
-        """the last plan's start pose and the pose its model predicted after one step"""
 
     def clamp(self, U: torch.Tensor) -> torch.Tensor:
         return U.clamp(-self.bound, self.bound)
 
-    def rollout(self, state: PlanState, U: torch.Tensor) -> Rollout:
-        """The backend's rollouts of U (K,H,2), every object's predicted motion scaled by the
-        planner's trust in it."""
-        r = self.dynamics.rollout(state, U)
-        t = self.model_trust
-        if t >= 1.0:
-            return r
-        start = state.object_pose.to(r.object_poses)
-        others = r.other_poses
-        if others is not None and state.n_others:
-            begin = state.other_poses.to(others)
-            others = begin + t * (others - begin)
-        return replace(r, object_poses=start + t * (r.object_poses - start), other_poses=others)
-
-    def _update_trust(self, state: PlanState) -> None:
-        """Compare the last executed step's predicted object motion with what happened (the
-        object's pose now) and move the trust toward their agreement."""
-        c = self.cfg
-        if self.expected is None or c.model_trust_rate == 0:
-            return
-        start, predicted = self.expected
-        expected = predicted[:2] - start[:2]
-        happened = state.object_pose[:2].double().numpy() - start[:2]
-        size = float(np.linalg.norm(expected))
-        if size > c.model_trust_min_m:
-            share = float(np.clip(happened @ expected / size**2, 0.0, 1.0))
-            self.model_trust += c.model_trust_rate * (share - self.model_trust)
-        else:
-            self.model_trust += c.model_trust_recover * (1.0 - self.model_trust)
-        self.model_trust = max(self.model_trust, c.model_trust_floor)
-
     def evaluate(self, state: PlanState, U: torch.Tensor) -> tuple[torch.Tensor, Rollout]:
-        """Costs (K,) and rollouts (scaled by the trust) of sequences U (K,H,2)."""
-        rollout = self.rollout(state, U)
+        """Costs (K,) and rollouts of sequences U (K,H,2)."""
+        rollout = self.dynamics.rollout(state, U)
         return self.cost.cost(state, rollout, U, last_action=self.last_action), rollout
 
     def noise(self, K: int) -> torch.Tensor:
@@ -246,7 +188,6 @@ class Planner:
     def plan(self, state: PlanState) -> tuple[np.ndarray, PlanInfo]:
         """The action (2,) to apply now, and the plan it came from."""
         t0 = time.perf_counter()
-        self._update_trust(state)
         found, iterations = self._optimise(state, self.clamp(self.nominal))
         if isinstance(found, Best):  # evaluated already: its rollout is the plan's
             U, rollout, cost = found.actions, found.rollout, torch.tensor([found.cost])
@@ -258,17 +199,12 @@ class Planner:
         self.last_action = U[0].clone()
         # float32 0.15 is 0.15000000596: clip in float64 so that the world accepts the action
         actions = np.clip(U.double().numpy(), -self.bound, self.bound)
-        start = state.object_pose.double().numpy()
-        believed = rollout.object_poses[0].detach().cpu().double().numpy()
-        predicted = start + (believed - start) / self.model_trust  # the backend's own
-        self.expected = (start, predicted[0])
         info = PlanInfo(
             actions=actions,
-            predicted_poses=predicted,
+            predicted_poses=rollout.object_poses[0].detach().cpu().numpy(),
             predicted_pusher=rollout.pusher_xy[0].detach().cpu().numpy(),
             cost=float(cost[0]),
             iterations=iterations,
             wall_ms=1e3 * (time.perf_counter() - t0),
-            model_trust=self.model_trust,
         )
         return actions[0].copy(), info

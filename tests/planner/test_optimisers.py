@@ -311,39 +311,3 @@ def test_unusable_planner_settings_are_refused(field, value):
 
     with pytest.raises(InputError, match=field):
         PlannerConfig(**{field: value})
-
-
-@pytest.mark.parametrize("name", PLANNERS)
-def test_the_planner_believes_its_model_as_far_as_the_world_bears_it_out(name):
-    """The toy model says the disk follows every push. Where the world leaves the disk put
-    (phantom motion), the planner's trust falls and it scales the predicted motion down;
-    where the disk moves as predicted, the trust comes back. What the planner reports as
-    predicted is still the model's own prediction."""
-    cost = PushCost(SCENARIO, torch.tensor((0.1, 0.0, 0.0)), TOY_COST)
-    planner = make_planner(name, CarriedDisk(DT), cost, SCENARIO, PlannerConfig())
-    state = toy_state()
-    trusts = []
-    for _ in range(4):  # the object never moves
-        action, info = planner.plan(state)
-        trusts.append(info.model_trust)
-        first = info.predicted_poses[0, :2] - state.object_pose[:2].numpy()
-        np.testing.assert_allclose(first, DT * action, atol=1e-5)  # the model's own
-    assert trusts[0] == 1.0 and trusts[-1] < 0.2 and trusts == sorted(trusts, reverse=True)
-    with torch.no_grad():
-        believed = planner.rollout(state, torch.tensor(info.actions, dtype=torch.float32)[None])
-    moved = believed.object_poses[0, 0, :2] - state.object_pose[:2]
-    np.testing.assert_allclose(moved.numpy(), trusts[-1] * DT * action, atol=1e-5)
-    for _ in range(3):  # now the object moves as predicted
-        pose = torch.tensor(info.predicted_poses[0], dtype=torch.float32)
-        state = dataclasses.replace(state, object_pose=pose, pusher_xy=pose[:2])
-        _, info = planner.plan(state)
-    assert info.model_trust > 0.85
-
-
-def test_without_trust_updates_the_planner_believes_its_model_fully():
-    cost = PushCost(SCENARIO, torch.tensor((0.1, 0.0, 0.0)), TOY_COST)
-    planner = make_planner("cem", CarriedDisk(DT), cost, SCENARIO,
-                           PlannerConfig(model_trust_rate=0.0))  # fmt: skip
-    for _ in range(3):
-        _, info = planner.plan(toy_state())
-    assert info.model_trust == 1.0
