@@ -2,12 +2,8 @@
 and the SQP planner linearises them (Gauss-Newton).
 
 Per step h of a rollout: the object's position error and symmetry-aware yaw error to the goal
-(the terminal step weighted more than the running steps; quadratic within a scale of the goal,
-linear beyond it, so that far from the goal a millimetre of predicted motion weighs no more
-than near it), a shaping term that draws the pusher to the object's far side from the goal
-while the object is predicted not to move (and, until the pusher is in position behind the
-object, whatever the model predicts: a learned model's phantom motion near the object must not
-buy the pusher out of going round it), penalties
+(the terminal step weighted more than the running steps), a shaping term that draws the pusher
+to the object's far side from the goal while the object is predicted not to move, penalties
 on action size and change, a penalty for the pusher leaving the workspace, and, with an
 ensemble of models, a penalty on their disagreement (the planner keeps to what they agree on),
 and, among other objects, a penalty on their predicted displacement (it keeps them in place).
@@ -55,15 +51,7 @@ class CostConfig:
     round_clearance_m: float = 0.02
     """the way round keeps this much clearance between pusher and object footprint"""
     moving_m: float = 0.005
-    """predicted object displacement over the horizon above which shaping fades out (only
-    while the pusher is in position: see ``in_position_m``)"""
-    in_position_m: float = 0.02
-    """the pusher is in position when it is behind the object (within ``behind_deg``) and at
-    most this much farther from it than the pre-push point; only then may predicted motion
-    fade the shaping term"""
-    huber_scales: float = 1.0
-    """pose errors beyond this many scales (``pos_scale_m``, ``yaw_scale_rad``) cost linearly,
-    within it quadratically (a pseudo-Huber cost)"""
+    """predicted object displacement over the horizon above which shaping fades out"""
     w_action: float = 0.02
     """weight of |a|^2 / bound^2"""
     w_smooth: float = 0.05
@@ -86,7 +74,7 @@ class CostConfig:
                 flags = {"w_spread": "--spread-weight", "w_disturb": "--disturb-weight"}
                 what = flags.get(name, f"cost setting {name}")
                 raise InputError(f"{what} must be a finite number >= 0, got {value}")
-        for name in ("pos_scale_m", "yaw_scale_rad", "shaping_scale_m", "moving_m", "huber_scales"):
+        for name in ("pos_scale_m", "yaw_scale_rad", "shaping_scale_m", "moving_m"):
             if not getattr(self, name) > 0:  # the scales divide
                 raise InputError(f"cost setting {name} must be positive, got {getattr(self, name)}")
 
@@ -130,30 +118,15 @@ class PushCost:
         back = state.footprint_radius_m + 0.02
         return obj - back * d
 
-    def _behind(self, state: PlanState) -> tuple[torch.Tensor, float]:
-        """The unit vector from the object to the pre-push point, and the pusher's angle from
-        it about the object (rad, 0: straight behind)."""
-        obj = state.object_pose[:2]
-        behind = self.pre_push_point(state) - obj
-        behind = behind / behind.norm().clamp_min(1e-9)
-        rel = state.pusher_xy.to(obj) - obj
-        phi = math.atan2(float(behind[0] * rel[1] - behind[1] * rel[0]), float(behind @ rel))
-        return behind, phi
-
-    def in_position(self, state: PlanState) -> bool:
-        """Whether the pusher is behind the object, near enough to push it toward the goal."""
-        _, phi = self._behind(state)
-        dist = float((state.pusher_xy.to(state.object_pose) - state.object_pose[:2]).norm())
-        reach = float((self.pre_push_point(state) - state.object_pose[:2]).norm())
-        near = dist <= reach + self.cfg.in_position_m
-        return abs(phi) <= math.radians(self.cfg.behind_deg) and near
-
     def shaping_target(self, state: PlanState) -> torch.Tensor:
         """Where the shaping term draws the pusher: the pre-push point when the pusher is
         already behind the object, else a waypoint a step round the object toward it."""
         c = self.cfg
         obj = state.object_pose[:2]
-        behind, phi = self._behind(state)
+        behind = self.pre_push_point(state) - obj
+        behind = behind / behind.norm().clamp_min(1e-9)  # unit vector from object to pre-push
+        rel = state.pusher_xy.to(obj) - obj
+        phi = math.atan2(float(behind[0] * rel[1] - behind[1] * rel[0]), float(behind @ rel))
         if abs(phi) <= math.radians(c.behind_deg):
             return self.pre_push_point(state)
         step = phi - math.copysign(math.radians(c.round_step_deg), phi)
@@ -161,12 +134,6 @@ class PushCost:
         cs, sn = math.cos(step), math.sin(step)
         way = torch.stack([cs * behind[0] - sn * behind[1], sn * behind[0] + cs * behind[1]])
         return obj + radius * way
-
-    def _huber(self, e: torch.Tensor, sq: torch.Tensor) -> torch.Tensor:
-        """Residuals ``e`` (in scales, squared norm ``sq``) whose square is the pseudo-Huber
-        cost 2 b^2 (sqrt(1 + sq / b^2) - 1): sq within b scales, linear in |e| beyond."""
-        u = sq / self.cfg.huber_scales**2
-        return e * torch.sqrt(2.0 / (torch.sqrt(1.0 + u) + 1.0))  # no 0/0 at e = 0
 
     def residuals(
         self,
@@ -183,19 +150,17 @@ class PushCost:
         goal = self.goal.to(actions)
         w = torch.full((H,), math.sqrt(c.w_running), dtype=actions.dtype, device=actions.device)
         w[-1] = math.sqrt(c.w_terminal)
-        pos = (rollout.object_poses[..., :2] - goal[:2]) / c.pos_scale_m
-        res = [(self._huber(pos, (pos**2).sum(-1, keepdim=True)) * w[None, :, None]).flatten(1)]
+        pos = (rollout.object_poses[..., :2] - goal[:2]) / c.pos_scale_m * w[None, :, None]
+        res = [pos.flatten(1)]
         period = state.yaw_period_rad
         if period is not None:
             yaw = wrap_angle(rollout.object_poses[..., 2] - goal[2], period) / c.yaw_scale_rad
-            res.append(math.sqrt(c.w_yaw) * self._huber(yaw, yaw**2) * w)
-        if self.in_position(state):
-            start = state.object_pose[:2].to(actions)
-            moved_sq = ((rollout.object_poses[:, -1, :2] - start) ** 2).sum(-1)
-            # sqrt of the gate exp(-moved^2 / m^2), written without sqrt (its gradient at 0 is NaN)
-            sqrt_gate = torch.exp(-0.5 * moved_sq / c.moving_m**2)
-        else:
-            sqrt_gate = torch.ones(K, dtype=actions.dtype, device=actions.device)
+            res.append(math.sqrt(c.w_yaw) * yaw * w)
+        moved_sq = ((rollout.object_poses[:, -1, :2] - state.object_pose[:2].to(actions)) ** 2).sum(
+            -1
+        )
+        # sqrt of the gate exp(-moved^2 / m^2), written without sqrt (its gradient at 0 is NaN)
+        sqrt_gate = torch.exp(-0.5 * moved_sq / c.moving_m**2)
         dist = (
             rollout.pusher_xy[:, -1] - self.shaping_target(state).to(actions)
         ) / c.shaping_scale_m

@@ -1,8 +1,8 @@
 """A toy with known dynamics and a known optimum: a disk carried by a point pusher.
 
 The disk moves exactly with the pusher (x_{h+1} = x_h + dt a_h), so the push cost without its
-shaping term, and with a quadratic pose cost, is a box-constrained linear least-squares
-problem in the actions, whose optimum cvxpy finds exactly.
+shaping term is a box-constrained linear least-squares problem in the actions, whose optimum
+cvxpy finds exactly.
 """
 
 from __future__ import annotations
@@ -15,8 +15,7 @@ from planner.cost import CostConfig, PushCost
 from planner.dynamics import PlanState, Rollout, integrate_pusher
 from sim.shapes import ObjectSpec
 
-TOY_COST = CostConfig(w_shaping=0.0, huber_scales=1e6)
-"""no shaping, and the pose cost quadratic (its linear part lies far beyond the toy's errors)"""
+TOY_COST = CostConfig(w_shaping=0.0)
 DISK = ObjectSpec("cylinder", (0.06, 0.06, 0.05), 0.2, 0.5)
 
 
