@@ -41,17 +41,17 @@ def test_one_cloud_encoded_once_gives_the_clouds_of_a_batch_of_copies(variant):
 
 @pytest.mark.parametrize(
     ("model", "max_mm", "max_deg"),
-    [("single_box_64", 20.0, 7.0), ("default", 18.0, 19.0)],  # measured 17.1/5.6, 14.1/15.3
+    [("single_box_64", 20.0, 7.0), ("single_box", 18.0, 19.0)],  # measured 17.1/5.6, 14.1/15.3
 )
 def test_carried_masks_against_the_full_rollout_of_the_shipped_models(model, max_mm, max_deg):
     """Masks decoded once and carried with the points, against masks decoded at every step,
     on pushes that bring the pusher into contact with the box during the horizon.
 
     Measured (seed 3, 32 sequences), the most apart after 4 steps: 17.1 mm and 5.6 deg for
-    the 64x64 model, 14.1 mm and 15.3 deg for the 32x32 default. The masks of the first step
-    say which points move with the pusher *before* contact; once the box is touched it should
-    join the pusher's motion, which a carried mask cannot do. So carrying masks is not exact
-    for pushing, and it is not the planner's default."""
+    the 64x64 model, 14.1 mm and 15.3 deg for the 32x32 single_box model. The masks of the
+    first step say which points move with the pusher *before* contact; once the box is
+    touched it should join the pusher's motion, which a carried mask cannot do. So carrying
+    masks is not exact for pushing, and it is not the planner's default."""
     scenario = load_scenario("single_box")
     world = PushWorld(scenario)
     obs = world.reset(3)
