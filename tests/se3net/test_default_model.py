@@ -1,12 +1,13 @@
-"""The shipped models: they load for single_box and predict unseen pushes well."""
+"""The shipped models: they load for single_box and predict unseen pushes well; the default
+loads for every packaged scenario of the same camera and actions."""
 
 from pathlib import Path
 
 import pytest
 import torch
 
-from scenarios import load_scenario
-from se3net.checkpoint import DEFAULT_MODEL, load_checkpoint, resolve_model
+from scenarios import list_scenarios, load_scenario
+from se3net.checkpoint import DEFAULT_MODEL, CheckpointError, load_checkpoint, resolve_model
 from se3net.data import PushDataset
 from se3net.metrics import FlowStats, MaskStats
 from sim.dataset import DataConfig, generate
@@ -51,3 +52,17 @@ def test_the_default_name_resolves_to_the_shipped_file():
     by_name, by_path = load_checkpoint("default")[1], load_checkpoint(DEFAULT_MODEL)[1]
     assert by_name["data_hash"] == by_path["data_hash"]
     assert resolve_model("runs/x/default") == Path("runs/x/default")  # a path stays a path
+
+
+@pytest.mark.parametrize("name", sorted(list_scenarios()))
+def test_the_default_fits_every_packaged_scenario_of_the_table_top_camera(name):
+    """Issue 16: one default for single_box, multi_object, household and the held-out objects;
+    the arm (joint-velocity controls) and tiny (a 32x32 camera) are refused with a reason."""
+    scenario = load_scenario(name)
+    if name in ("arm", "tiny"):
+        refused = f"(takes controls|does not fit scenario '{name}')"
+        with pytest.raises(CheckpointError, match=refused):
+            load_checkpoint("default", scenario=scenario)
+    else:
+        model, _ = load_checkpoint("default", scenario=scenario)
+        assert model.cfg.k == 6
