@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -133,17 +134,34 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     out["median_others_moved_m"] = float(np.median(moved)) if moved else None
     out["others_moved_over_1cm"] = float(np.mean(np.array(moved) > 0.01)) if moved else None
     out["diagnostics"] = pooled(r["diagnostics"] for r in records)
-    shapes: dict[str, list[int]] = {}  # where generalisation stops: tight, loose, trials
-    for r in records:
-        if "pushed_object" in r:
-            row = shapes.setdefault(r["pushed_object"]["shape"], [0, 0, 0])
-            row[0], row[1], row[2] = (
-                row[0] + r["success_tight"],
-                row[1] + r["success_loose"],
-                row[2] + 1,
-            )
-    out["by_shape"] = {k: {"tight": v[0], "loose": v[1], "trials": v[2]} for k, v in shapes.items()}
+    # where generalisation stops: successes by the pushed object's shape and mass
+    pushed = [r for r in records if "pushed_object" in r]
+    out["by_shape"] = tally(pushed, lambda o: o["shape"])
+    out["by_mass"] = tally(pushed, mass_bin)
     return out
+
+
+MASS_BIN_KG = 0.1
+"""width of the pushed-mass bins of trial summaries"""
+
+
+def mass_bin(obj: dict[str, Any]) -> str:
+    """The pushed object's mass bin, e.g. ``"0.5-0.6 kg"`` (bins of ``MASS_BIN_KG``)."""
+    lo = math.floor(obj["mass_kg"] / MASS_BIN_KG + 1e-9) * MASS_BIN_KG
+    return f"{lo:.1f}-{lo + MASS_BIN_KG:.1f} kg"
+
+
+def tally(
+    records: list[dict[str, Any]], key: Callable[[dict[str, Any]], str]
+) -> dict[str, dict[str, int]]:
+    """Tight and loose successes and trials per ``key(pushed_object)``, in sorted key order."""
+    rows: dict[str, dict[str, int]] = {}
+    for r in records:
+        row = rows.setdefault(key(r["pushed_object"]), {"tight": 0, "loose": 0, "trials": 0})
+        row["tight"] += int(r["success_tight"])
+        row["loose"] += int(r["success_loose"])
+        row["trials"] += 1
+    return dict(sorted(rows.items()))
 
 
 def fmt(x: Any, spec: str = ".3f") -> str:

@@ -147,6 +147,13 @@ def _cmd_trials(args: argparse.Namespace) -> int:
             if len(s["by_shape"]) > 1
             else ""
         )
+        + (
+            "  by pushed mass          "
+            + ", ".join(f"{k} {v['tight']}/{v['trials']}" for k, v in s["by_mass"].items())
+            + "\n"
+            if len(s["by_mass"]) > 1
+            else ""
+        )
         + f"wrote {args.out}/trials.jsonl, summary.json, paths.png"
     )
     return 0

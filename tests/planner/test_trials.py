@@ -226,18 +226,24 @@ def test_an_old_folder_of_a_shipped_model_name_is_refused_and_of_a_lone_object_e
     assert run_trials(replace(lone, n=2), tmp_path / "lone", progress=False)["trials"] == 2
 
 
-def test_summaries_count_successes_by_the_pushed_objects_shape():
+def test_summaries_count_successes_by_the_pushed_objects_shape_and_mass():
     from planner.diagnostics import exploitation
     from planner.trials import summarize
 
-    def rec(shape, tight, loose):
+    def rec(shape, mass, tight, loose):
         return {"success_tight": tight, "success_loose": loose, "final_pos_err_m": 0.0,
                 "final_yaw_err_deg": 0.0, "steps": 1, "replan_ms_median": 1.0,
-                "diagnostics": exploitation([]), "pushed_object": {"shape": shape}}  # fmt: skip
+                "diagnostics": exploitation([]),
+                "pushed_object": {"shape": shape, "mass_kg": mass}}  # fmt: skip
 
-    s = summarize([rec("T", True, True), rec("T", False, True), rec("box", False, False)])
+    s = summarize([rec("T", 0.52, True, True), rec("T", 0.7, False, True),
+                   rec("box", 0.3, False, False), rec("box", 0.58, True, True)])  # fmt: skip
     assert s["by_shape"] == {"T": {"tight": 1, "loose": 2, "trials": 2},
-                             "box": {"tight": 0, "loose": 0, "trials": 1}}  # fmt: skip
+                             "box": {"tight": 1, "loose": 1, "trials": 2}}  # fmt: skip
+    # 0.3 kg is a bin's lower edge, though 0.3 / 0.1 is 2.9999999999999996 in floats
+    assert s["by_mass"] == {"0.3-0.4 kg": {"tight": 0, "loose": 0, "trials": 1},
+                            "0.5-0.6 kg": {"tight": 2, "loose": 2, "trials": 2},
+                            "0.7-0.8 kg": {"tight": 0, "loose": 1, "trials": 1}}  # fmt: skip
 
 
 @pytest.mark.scale
