@@ -147,6 +147,7 @@ MASS_BIN_KG = 0.1
 
 def mass_bin(obj: dict[str, Any]) -> str:
     """The pushed object's mass bin, e.g. ``"0.5-0.6 kg"`` (bins of ``MASS_BIN_KG``)."""
+    # the 1e-9 puts a mass on a bin edge into the bin it starts: 0.3 / 0.1 is 2.999...
     lo = math.floor(obj["mass_kg"] / MASS_BIN_KG + 1e-9) * MASS_BIN_KG
     return f"{lo:.1f}-{lo + MASS_BIN_KG:.1f} kg"
 
