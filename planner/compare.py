@@ -165,7 +165,8 @@ def compare_trials(
 
     Returns:
         :func:`paired_stats` of the outcomes, plus ``a``, ``b`` (folders), ``tolerance``,
-        ``tolerance_m_deg``, ``trials`` (the paired indices) and per folder the medians over
+        ``tolerance_m_deg``, ``trials`` (the paired indices), ``outcomes_a`` and
+        ``outcomes_b`` (success per paired trial) and per folder the medians over
         those trials of ``steps`` and ``replan_ms_median`` (``median_steps_a``,
         ``median_replan_ms_a``, ... ; None where a record lacks the figure).
 
@@ -207,9 +208,11 @@ def compare_trials(
             "compare folders run with the same --scenario, --seed and trial draw"
         )
     key = f"success_{tolerance}"
-    stats = paired_stats([recs_a[i][key] for i in trials], [recs_b[i][key] for i in trials])
+    outcomes_a, outcomes_b = ([bool(recs[i][key]) for i in trials] for recs in (recs_a, recs_b))
     out = {"a": str(a), "b": str(b), "tolerance": tolerance}
-    out |= {"tolerance_m_deg": list(TOLERANCES[tolerance]), "trials": trials, **stats}
+    out |= {"tolerance_m_deg": list(TOLERANCES[tolerance]), "trials": trials}
+    out |= {"outcomes_a": outcomes_a, "outcomes_b": outcomes_b}
+    out |= paired_stats(outcomes_a, outcomes_b)
     for side, recs in (("a", recs_a), ("b", recs_b)):
         out[f"median_steps_{side}"] = _median([recs[i].get("steps") for i in trials])
         out[f"median_replan_ms_{side}"] = _median([recs[i].get("replan_ms_median") for i in trials])
@@ -221,19 +224,58 @@ def _median(values: list[float | None]) -> float | None:
     return None if None in values else float(np.median(values))
 
 
-def format_comparison(c: dict[str, Any]) -> str:
-    """Three lines of a :func:`compare_trials` result, for the terminal."""
-    metres, degrees = c["tolerance_m_deg"]
+def pool_comparisons(comparisons: list[dict[str, Any]]) -> dict[str, Any]:
+    """Several :func:`compare_trials` results (one per scenario, say) as one paired test
+    over all their trials: :func:`paired_stats` of the outcomes put end to end, plus
+    ``pairs`` (how many comparisons), ``tolerance`` and ``tolerance_m_deg``.
+
+    Raises:
+        InputError: the comparisons were made at different tolerances.
+    """
+    tolerances = {c["tolerance"] for c in comparisons}
+    if len(tolerances) != 1:
+        raise InputError(f"cannot pool comparisons at different tolerances: {sorted(tolerances)}")
+    first = comparisons[0]
+    return {
+        "pairs": len(comparisons),
+        "tolerance": first["tolerance"],
+        "tolerance_m_deg": first["tolerance_m_deg"],
+        **paired_stats(
+            [x for c in comparisons for x in c["outcomes_a"]],
+            [x for c in comparisons for x in c["outcomes_b"]],
+        ),
+    }
+
+
+def _success_line(c: dict[str, Any]) -> str:
+    """Successes, wins and losses, the exact McNemar test and the difference's interval."""
     n, (lo, hi), p = c["n"], c["difference_ci95"], c["p_value"]
     p_text = "p < 0.001" if p < 0.001 else f"p = {p:.2g}"
-    lines = [
-        f"A: {c['a']}  B: {c['b']}  ({n} paired trials, {c['tolerance']}: "
-        f"{metres * 100:g} cm & {degrees:g}°)",
+    return (
         f"success A {c['successes_a']}/{n} ({c['successes_a'] / n:.0%}), "
         f"B {c['successes_b']}/{n} ({c['successes_b'] / n:.0%}); "
         f"A wins {c['wins']}, loses {c['losses']}; exact McNemar {p_text}; "
         f"difference {c['difference'] * 100:+.0f} points "
-        f"[95 % CI {lo * 100:+.0f} to {hi * 100:+.0f}]",
+        f"[95 % CI {lo * 100:+.0f} to {hi * 100:+.0f}]"
+    )
+
+
+def format_pooled(pooled: dict[str, Any]) -> str:
+    """Two lines of a :func:`pool_comparisons` result, for the terminal."""
+    metres, degrees = pooled["tolerance_m_deg"]
+    return (
+        f"pooled over {pooled['pairs']} pairs of folders ({pooled['n']} paired trials, "
+        f"{pooled['tolerance']}: {metres * 100:g} cm & {degrees:g}°)\n" + _success_line(pooled)
+    )
+
+
+def format_comparison(c: dict[str, Any]) -> str:
+    """Three lines of a :func:`compare_trials` result, for the terminal."""
+    metres, degrees = c["tolerance_m_deg"]
+    lines = [
+        f"A: {c['a']}  B: {c['b']}  ({c['n']} paired trials, {c['tolerance']}: "
+        f"{metres * 100:g} cm & {degrees:g}°)",
+        _success_line(c),
     ]
     lines.append(
         f"median steps A {fmt(c['median_steps_a'], '.0f')}, B {fmt(c['median_steps_b'], '.0f')}; "

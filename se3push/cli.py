@@ -298,10 +298,18 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 def _cmd_compare(args: argparse.Namespace) -> int:
     import json
 
-    from planner.compare import compare_trials, format_comparison
+    from planner.compare import compare_trials, format_comparison, format_pooled, pool_comparisons
 
-    result = compare_trials(args.a, args.b, tolerance=args.tolerance, n=args.n)
-    print(json.dumps(result) if args.json else format_comparison(result))
+    pairs = [(args.a, args.b), *(args.pair or [])]
+    results = [compare_trials(a, b, tolerance=args.tolerance, n=args.n) for a, b in pairs]
+    if len(results) == 1:
+        print(json.dumps(results[0]) if args.json else format_comparison(results[0]))
+        return 0
+    pooled = pool_comparisons(results)
+    if args.json:
+        print(json.dumps({"comparisons": results, "pooled": pooled}))
+    else:
+        print("\n".join(map(format_comparison, results)) + "\n" + format_pooled(pooled))
     return 0
 
 
@@ -504,6 +512,10 @@ def _parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     s.add_argument("--n", type=int, default=None,
                    help="compare the first N trials (default: every trial both hold)")  # fmt: skip
+    s.add_argument("--pair", nargs=2, action="append", metavar=("A", "B"),
+                   help="another pair of folders (another scenario, say); with one or more, "
+                        "each pair is compared and then all their trials pooled in one "
+                        "test")  # fmt: skip
     s.add_argument("--json", action="store_true", help="print the figures as JSON")
     s.set_defaults(run=_cmd_compare)
     return p

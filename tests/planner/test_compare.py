@@ -172,3 +172,23 @@ def test_a_folder_without_trials_is_refused(tmp_path, capsys):
 def test_more_trials_than_a_folder_holds_are_refused(folders, capsys):
     err = _refused(["compare", *map(str, folders), "--n", "51"], capsys)
     assert "holds 50 of the first 51" in err
+
+
+def test_pairs_of_folders_are_compared_each_and_pooled_in_one_test(folders, tmp_path, capsys):
+    """A second pair of another scenario and seed: A wins 1 and loses 2 of 3, so over both
+    pairs A wins 15 and loses 6 of 53, tested once on all of them."""
+    a2 = _write_folder(tmp_path / "A2", [True, False, False], scenario="single_box", seed=1)
+    b2 = _write_folder(tmp_path / "B2", [False, True, True], scenario="single_box", seed=1)
+    argv = ["compare", *map(str, folders), "--pair", str(a2), str(b2)]
+    assert main([*argv, "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert [(c["wins"], c["losses"]) for c in r["comparisons"]] == [(14, 4), (1, 2)]
+    pooled = r["pooled"]
+    assert (pooled["pairs"], pooled["n"], pooled["wins"], pooled["losses"]) == (2, 53, 15, 6)
+    assert (pooled["successes_a"], pooled["successes_b"]) == (39, 30)
+    assert pooled["p_value"] == pytest.approx(mcnemar_exact(15, 6))
+    assert pooled["p_value"] > r["comparisons"][0]["p_value"]  # 15/6 is weaker than 14/4
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "pooled over 2 pairs of folders (53 paired trials, tight" in out
+    assert "success A 39/53 (74%), B 30/53 (57%); A wins 15, loses 6" in out
