@@ -230,11 +230,12 @@ def pool_comparisons(comparisons: list[dict[str, Any]]) -> dict[str, Any]:
     ``pairs`` (how many comparisons), ``tolerance`` and ``tolerance_m_deg``.
 
     Raises:
-        InputError: the comparisons were made at different tolerances.
+        ValueError: the comparisons were made at different tolerances (a caller's bug: the
+            command line has one ``--tolerance`` for every pair).
     """
     tolerances = {c["tolerance"] for c in comparisons}
     if len(tolerances) != 1:
-        raise InputError(f"cannot pool comparisons at different tolerances: {sorted(tolerances)}")
+        raise ValueError(f"cannot pool comparisons at different tolerances: {sorted(tolerances)}")
     first = comparisons[0]
     return {
         "pairs": len(comparisons),
@@ -245,6 +246,12 @@ def pool_comparisons(comparisons: list[dict[str, Any]]) -> dict[str, Any]:
             [x for c in comparisons for x in c["outcomes_b"]],
         ),
     }
+
+
+def _scope(c: dict[str, Any]) -> str:
+    """How many paired trials, at which tolerance: ``"50 paired trials, tight: 2 cm & 10°"``."""
+    metres, degrees = c["tolerance_m_deg"]
+    return f"{c['n']} paired trials, {c['tolerance']}: {metres * 100:g} cm & {degrees:g}°"
 
 
 def _success_line(c: dict[str, Any]) -> str:
@@ -262,21 +269,13 @@ def _success_line(c: dict[str, Any]) -> str:
 
 def format_pooled(pooled: dict[str, Any]) -> str:
     """Two lines of a :func:`pool_comparisons` result, for the terminal."""
-    metres, degrees = pooled["tolerance_m_deg"]
-    return (
-        f"pooled over {pooled['pairs']} pairs of folders ({pooled['n']} paired trials, "
-        f"{pooled['tolerance']}: {metres * 100:g} cm & {degrees:g}°)\n" + _success_line(pooled)
-    )
+    head = f"pooled over {pooled['pairs']} pairs of folders ({_scope(pooled)})"
+    return head + "\n" + _success_line(pooled)
 
 
 def format_comparison(c: dict[str, Any]) -> str:
     """Three lines of a :func:`compare_trials` result, for the terminal."""
-    metres, degrees = c["tolerance_m_deg"]
-    lines = [
-        f"A: {c['a']}  B: {c['b']}  ({c['n']} paired trials, {c['tolerance']}: "
-        f"{metres * 100:g} cm & {degrees:g}°)",
-        _success_line(c),
-    ]
+    lines = [f"A: {c['a']}  B: {c['b']}  ({_scope(c)})", _success_line(c)]
     lines.append(
         f"median steps A {fmt(c['median_steps_a'], '.0f')}, B {fmt(c['median_steps_b'], '.0f')}; "
         f"median replan A {fmt(c['median_replan_ms_a'], '.0f')} ms, "
