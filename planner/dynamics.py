@@ -29,7 +29,7 @@ import torch
 
 from scenarios import InputError, Scenario
 from se3net.data import subsample
-from se3net.rollout import pusher_path, rollout
+from se3net.rollout import pusher_path, reprojection, rollout
 
 if TYPE_CHECKING:
     from sim import PushWorld
@@ -191,6 +191,8 @@ class LearnedDynamics:
         scenario: the scenario (camera extrinsics, control timing).
         name: ``"se3net"`` or ``"flow"``.
         carry_masks: keep the first step's masks over the horizon (``se3net.rollout``).
+        feedback: how each predicted cloud is fed back (``se3net.rollout.FEEDBACK``):
+            ``rendered`` again by the scenario's camera, or on the observed ``grid``.
     """
 
     differentiable = True
@@ -203,6 +205,7 @@ class LearnedDynamics:
         name: str,
         device: str = "cpu",
         carry_masks: bool = False,
+        feedback: str = "grid",
     ):
         # planning differentiates with respect to the actions only: a frozen copy of the
         # weights spares the backward pass their gradients (grad and SQP planners) and leaves
@@ -212,6 +215,8 @@ class LearnedDynamics:
         self.dt = scenario.action.dt_control_s
         self.carry_masks = carry_masks
         self.stride = model.cfg.stride  # the network sees every stride-th pixel
+        self.feedback = feedback
+        self.reproject = reprojection(feedback, scenario.camera, self.stride)
 
     def network_view(self, state: PlanState) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """What the network sees of a state, on its device: the cloud (3,h,w), the valid
@@ -236,6 +241,7 @@ class LearnedDynamics:
             state.pusher_xy.to(self.device)[None],
             self.dt,
             carry_masks=self.carry_masks,
+            reproject=self.reproject,
         )
         T = state.T_world_cam.to(self.device, points.dtype)
 
@@ -321,10 +327,12 @@ def make_dynamics(
     device: str = "cpu",
     world: PushWorld | None = None,
     object_index: int = 0,
+    feedback: str = "grid",
 ) -> Dynamics:
     """A backend by name: ``se3net``/``flow`` (a checkpoint; the shipped model by default;
     checkpoints joined by ``+``: an ensemble of them), ``oracle`` (needs the ``world`` and
-    the pushed object's index) or ``no-motion``.
+    the pushed object's index) or ``no-motion``; ``feedback``: how a learned one feeds its
+    predicted clouds back (``se3net.rollout.FEEDBACK``).
 
     Raises:
         ValueError: an unknown name. CheckpointError: a model that does not fit the scenario.
@@ -343,10 +351,13 @@ def make_dynamics(
         if model is not None and ENSEMBLE_SEP in model and not Path(model).exists():
             parts = model.split(ENSEMBLE_SEP)
             return EnsembleDynamics(
-                [make_dynamics(name, scenario, model=m, device=device) for m in parts]
+                [
+                    make_dynamics(name, scenario, model=m, device=device, feedback=feedback)
+                    for m in parts
+                ]
             )
 
         net, blob = load_checkpoint(model or "default", scenario=scenario, device=device)
         kind = "flow" if blob["model"]["variant"].startswith("flow") else "se3net"
-        return LearnedDynamics(net, scenario, name=kind, device=device)
+        return LearnedDynamics(net, scenario, name=kind, device=device, feedback=feedback)
     raise ValueError(f"unknown dynamics backend {name!r}; known: {', '.join(BACKENDS)}")

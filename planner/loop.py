@@ -17,6 +17,7 @@ from planner.diagnostics import STEP_FIGURES, exploitation, step_figures
 from planner.viz import MeshcatVisualiser, NullVisualiser
 from scenarios import InputError, Scenario, load_scenario
 from se3net.device import check_device
+from se3net.rollout import check_feedback
 from sim import Observation, PushWorld
 from sim.planar import pose_errors
 
@@ -53,6 +54,9 @@ class PushConfig:
     (exploration when collecting planner-visited data; 0 = the plan's action as it is)"""
     planning: PlannerConfig = PlannerConfig()
     """the optimiser's settings (horizon, samples, iterations…; its seed is ``seed``)"""
+    feedback: str = "grid"
+    """how a learned model's predicted clouds are fed back over the horizon
+    (``se3net.rollout.FEEDBACK``): rendered again by the camera, or on the observed grid"""
     cost: CostConfig = CostConfig()
     """the cost's weights (``w_spread``: an ensemble's disagreement)"""
 
@@ -62,6 +66,7 @@ class PushConfig:
         if self.max_steps < 1:
             raise InputError(f"--max-steps must be a positive integer, got {self.max_steps}")
         check_device(self.device)
+        check_feedback(self.feedback)
 
 
 @dataclass
@@ -151,7 +156,9 @@ def push_planner(cfg: PushConfig, scenario: Scenario, world: PushWorld) -> Plann
     if cfg.model in ("oracle", "no-motion"):
         dynamics = make_dynamics(cfg.model, scenario, world=world, object_index=cfg.object_index)
     else:
-        dynamics = make_dynamics("se3net", scenario, model=cfg.model, device=cfg.device)
+        dynamics = make_dynamics(
+            "se3net", scenario, model=cfg.model, device=cfg.device, feedback=cfg.feedback
+        )
     return make_planner(
         cfg.planner,
         dynamics,

@@ -26,6 +26,7 @@ from planner.diagnostics import pooled
 from planner.loop import PushConfig, push_scenario, run_push
 from scenarios import InputError, Scenario, load_scenario
 from scenarios.config import differences
+from se3net.rollout import check_feedback
 from sim import PushWorld
 from sim.jobs import Backend, run_jobs
 from sim.planar import pose_errors
@@ -53,12 +54,15 @@ class TrialsConfig:
     """the optimiser's settings (each trial's planner is seeded with its world's seed)"""
     cost: CostConfig = CostConfig()
     """the cost's weights"""
+    feedback: str = "grid"
+    """how a learned model's predicted clouds are fed back (``se3net.rollout.FEEDBACK``)"""
 
     def __post_init__(self) -> None:
         if self.n < 1 or self.max_steps < 1:
             raise InputError(
                 f"--n and --max-steps must be positive, got {self.n} and {self.max_steps}"
             )
+        check_feedback(self.feedback)
 
 
 TRIAL_SET = 2
@@ -103,6 +107,7 @@ def run_trial(cfg: TrialsConfig, i: int) -> dict[str, Any]:
         max_steps=cfg.max_steps,
         planning=cfg.planning,
         cost=cfg.cost,
+        feedback=cfg.feedback,
     )
     result = run_push(push)
     path = [trial["start"][:2]] + [r.object_pose[:2] for r in result.records]
@@ -233,8 +238,12 @@ def _compared(meta: dict) -> dict:
     """What makes two trial folders the same set: the configuration but ``n`` (the set is a
     prefix: any n extends or summarises it) and the planner settings only other optimisers
     read; cost terms added later count with the weight the older runs had (none), and the
-    disturbance weight not at all where the pushed object is always alone."""
+    disturbance weight not at all where the pushed object is always alone; runs from before
+    ``feedback`` fed predicted clouds back on the grid, and the simulator backends have none."""
     out = {k: v for k, v in meta.items() if k != "n"}
+    out["feedback"] = meta.get("feedback", "grid")
+    if meta.get("model") in ("oracle", "no-motion"):
+        del out["feedback"]
     if isinstance(meta.get("cost"), dict):  # runs from before the term had none: weight 0
         out["cost"] = {"w_disturb": 0.0, **meta["cost"]}
         if load_scenario(meta["scenario"]).objects.count[1] == 1:  # alone: the term is inert

@@ -19,7 +19,7 @@ import torch
 from se3net.checkpoint import DEFAULT_MODEL, load_checkpoint, model_config
 from se3net.data import PushDataset, evenly_spaced, paper_noise, subsample_batch
 from se3net.metrics import FlowStats, MaskStats
-from se3net.rollout import rollout
+from se3net.rollout import check_feedback, reprojection, rollout
 from sim.shards import portable_path
 
 MULTI_STEPS = 5
@@ -49,6 +49,9 @@ class EvalResult:
     multi_step_no_motion: list[float] = field(default_factory=list)
     noise: str = "none"
     """the paper's robustness noise on the test data (``se3net.data.PAPER_NOISE``)"""
+    feedback: str = "grid"
+    """how the fed-back steps feed predictions back (``se3net.rollout``): on the observed
+    ``grid`` or ``rendered`` again by the camera"""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -88,11 +91,14 @@ def evaluate_checkpoint(
     name: str | None = None,
     split: str = "test",
     noise: str = "none",
+    feedback: str = "grid",
 ) -> EvalResult:
     """Evaluate one checkpoint on the test split of ``data`` (``split="all"``: on every
     episode, for a dataset made to be held out; ``name``: its label, by default
     ``checkpoint_name``; ``noise``: the test data under one of the paper's noises, drawn with
-    seed ``EVAL_NOISE_SEED``)."""
+    seed ``EVAL_NOISE_SEED``; ``feedback``: how the fed-back steps feed predictions back,
+    ``grid`` or ``rendered``)."""
+    check_feedback(feedback)
     stride = model_config(path).stride
     reading = {"stride": stride, "noise": paper_noise(noise), "seed": EVAL_NOISE_SEED,
                "device": device}  # fmt: skip
@@ -108,12 +114,15 @@ def evaluate_checkpoint(
             masks.add(pred.masks, b["part"], b["points"], b["target"][:, 0])
     multi = PushDataset(data, split=split, horizon=MULTI_STEPS, **reading)
     dt = multi.scenario.action.dt_control_s
+    reproject = reprojection(feedback, multi.scenario.camera, stride)
     steps = [FlowStats() for _ in range(MULTI_STEPS)]
     idx = evenly_spaced(len(multi), max_examples // 2)
     for s in range(0, len(idx), batch):
         b = {k: v.to(device) for k, v in multi.batch(idx[s : s + batch]).items()}
         # the recorded commands; the pusher positions (if the controls hold them) integrated
-        clouds = rollout(model, b["points"], b["valid"], b["actions"], b["state"], dt)
+        clouds = rollout(
+            model, b["points"], b["valid"], b["actions"], b["state"], dt, reproject=reproject
+        )
         for k, x in enumerate(clouds):
             steps[k].add(x, b["points"], b["target"][:, k], b["target_valid"][:, k])
     is_se3 = masks.n_points > 0
@@ -131,6 +140,7 @@ def evaluate_checkpoint(
         multi_step_mse=[s.mse_cm2 for s in steps],
         multi_step_no_motion=[s.no_motion_cm2 for s in steps],
         noise=noise,
+        feedback=feedback,
     )
 
 
@@ -250,6 +260,7 @@ def evaluate(
     split: str = "test",
     noise: str = "none",
     device: str = "cpu",
+    feedback: str = "grid",
 ) -> list[EvalResult]:
     """Evaluate checkpoints on the test split of ``data`` (``split="all"``: every episode;
     ``noise``: under one of the paper's noises); write ``table.md``, ``eval.json`` and PNGs to
@@ -261,8 +272,15 @@ def evaluate(
     names = checkpoint_names(paths)
     results = [
         evaluate_checkpoint(
-            p, data, max_examples=max_examples, name=name, split=split, noise=noise, device=device
-        )
+            p,
+            data,
+            max_examples=max_examples,
+            name=name,
+            split=split,
+            noise=noise,
+            device=device,
+            feedback=feedback,
+        )  # fmt: skip
         for p, name in zip(paths, names, strict=True)
     ]
     (out_dir / "table.md").write_text(table_markdown(results, portable_path(data)))

@@ -37,7 +37,7 @@ from se3net.device import check_device
 from se3net.distributed import Ranks, broadcast, join, leave, mean_over_ranks, rank_device, shard
 from se3net.metrics import LOSSES, FlowStats, point_loss
 from se3net.model import ModelConfig, build_model, sharpening
-from se3net.rollout import rollout
+from se3net.rollout import Reprojection, check_feedback, reprojection, rollout
 from sim.shards import DataError, portable_path
 
 
@@ -100,6 +100,9 @@ class TrainConfig:
     """an input channel of which pixels hold a point (``ModelConfig.valid_channel``)"""
     full_res_head: bool = False
     """a last decoder stage at full resolution (``ModelConfig.full_res_head``)"""
+    feedback: str = "grid"
+    """how a multi-step rollout feeds predicted clouds back (``se3net.rollout``): on the
+    observed ``grid``, or ``rendered`` again by the camera as the planner does"""
 
     def __post_init__(self) -> None:
         for name in ("iters", "batch", "eval_every", "val_examples", "rollout_steps", "stride"):
@@ -124,6 +127,7 @@ class TrainConfig:
             raise InputError(f"--loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
         paper_noise(self.noise)
         check_device(self.device)
+        check_feedback(self.feedback)
 
     def model_options(self) -> dict[str, Any]:
         """The architecture settings this run passes to ``ModelConfig``."""
@@ -135,7 +139,8 @@ class TrainConfig:
 
 
 _LATER_SETTINGS = (
-    "stride", "loss", "noise", "controls", "valid_channel", "full_res_head", "later_from"
+    "stride", "loss", "noise", "controls", "valid_channel", "full_res_head", "later_from",
+    "feedback",
 )  # fmt: skip
 """settings added after runs were made: a run that has none ran at its default"""
 
@@ -147,6 +152,7 @@ def rollout_loss(
     dt: float,
     *,
     loss: str = "moving",
+    reproject: Reprojection | None = None,
     **sharpen: Any,
 ) -> torch.Tensor:
     """Mean point loss over an N-step rollout (``se3net.rollout``: the planner's), each
@@ -156,7 +162,9 @@ def rollout_loss(
     of the first frame), so the loss follows the same points the planner's pose fit follows.
     """
     actions = b["actions"][:, :steps]
-    clouds = rollout(model, b["points"], b["valid"], actions, b["state"], dt, **sharpen)
+    clouds = rollout(
+        model, b["points"], b["valid"], actions, b["state"], dt, reproject=reproject, **sharpen
+    )
     total = 0.0
     for h, x in enumerate(clouds):
         total = total + point_loss(
@@ -170,12 +178,22 @@ class StepLoss(torch.nn.Module):
     synchronises gradients through a module's forward, and the rollout calls the network's
     parts (encode, predict) rather than its forward, so the whole loss is what it wraps."""
 
-    def __init__(self, model: torch.nn.Module, steps: int, dt: float, loss: str) -> None:
+    def __init__(
+        self,
+        model: torch.nn.Module,
+        steps: int,
+        dt: float,
+        loss: str,
+        reproject: Reprojection | None = None,
+    ) -> None:
         super().__init__()
         self.model, self.steps, self.dt, self.loss = model, steps, dt, loss
+        self.reproject = reproject
 
     def forward(self, b: dict[str, torch.Tensor], sharpen: dict[str, Any]) -> torch.Tensor:
-        return rollout_loss(self.model, b, self.steps, self.dt, loss=self.loss, **sharpen)
+        return rollout_loss(
+            self.model, b, self.steps, self.dt, loss=self.loss, reproject=self.reproject, **sharpen
+        )
 
 
 def learning_rate(cfg: TrainConfig, it: int) -> float:
@@ -205,6 +223,7 @@ def validate(
     device: str,
     rollout_steps: int = 1,
     loss: str = "moving",
+    reproject: Reprojection | None = None,
 ) -> dict[str, float]:
     """Loss and flow MSE (one step) on fixed validation examples, and the rollout loss."""
     model.eval()
@@ -216,7 +235,8 @@ def validate(
         loss_sum += float(
             point_loss(pred, b["target"][:, 0], b["target_valid"][:, 0], b["points"], loss=loss)
         ) * len(pred)
-        rollout_sum += float(rollout_loss(model, b, rollout_steps, dt, loss=loss)) * len(pred)
+        rolled = rollout_loss(model, b, rollout_steps, dt, loss=loss, reproject=reproject)
+        rollout_sum += float(rolled) * len(pred)
         n += len(pred)
         stats.add(pred, b["points"], b["target"][:, 0], b["target_valid"][:, 0])
     model.train()
@@ -358,7 +378,8 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
             (out / "metrics.jsonl").write_text("")
     val_idx = np.linspace(0, len(val) - 1, min(cfg.val_examples, len(val))).round().astype(int)
     model.train()
-    step_loss: torch.nn.Module = StepLoss(model, cfg.rollout_steps, dt, cfg.loss)
+    reproject = reprojection(cfg.feedback, cam, cfg.stride)
+    step_loss: torch.nn.Module = StepLoss(model, cfg.rollout_steps, dt, cfg.loss, reproject)
     if ranks.world > 1:  # each step's gradients averaged over the processes' shards
         from torch.nn.parallel import DistributedDataParallel
 
@@ -427,7 +448,9 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
             figures = {
                 "iteration": done,
                 "train_loss": train_loss,
-                **validate(model, val, val_idx, cfg.batch, device, cfg.rollout_steps, cfg.loss),
+                **validate(
+                    model, val, val_idx, cfg.batch, device, cfg.rollout_steps, cfg.loss, reproject
+                ),  # fmt: skip
                 "sigma": sigma,
                 "gamma": gamma,
                 "lr": learning_rate(cfg, it),

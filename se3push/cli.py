@@ -85,6 +85,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         rollout_steps=args.rollout_steps, init=args.init, later_fraction=args.later_fraction,
         later_from=args.later_from, stride=args.stride, loss=args.loss, noise=args.noise,
         controls=args.controls, valid_channel=args.valid_channel, full_res_head=args.full_res_head,
+        feedback=args.feedback,
     )  # fmt: skip
     try:
         figures = train(cfg, resume=args.resume)
@@ -105,7 +106,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
     results = evaluate(
         args.checkpoints, args.data, args.out, max_examples=args.max_examples, split=args.split,
-        noise=args.noise, device=args.device,
+        noise=args.noise, device=args.device, feedback=args.feedback,
     )  # fmt: skip
     print(table_markdown(results, args.data))
     print(f"wrote {args.out}/table.md, eval.json and example PNGs")
@@ -214,6 +215,15 @@ def _noise_option(s: argparse.ArgumentParser, what: str) -> None:
     )  # fmt: skip
 
 
+def _feedback_option(s: argparse.ArgumentParser, what: str) -> None:
+    """``--feedback``: how ``what`` is fed back (``se3net.rollout.FEEDBACK``)."""
+    s.add_argument(
+        "--feedback", default="grid", metavar="grid|rendered",
+        help=f"how {what} are fed back as the next input: on the observed pixel grid "
+        "(default, the paper's way) or rendered again by the camera",
+    )  # fmt: skip
+
+
 def _planning_options(s: argparse.ArgumentParser) -> None:
     """The common optimiser and cost settings of a closed-loop push."""
     from planner.base import PlannerConfig
@@ -239,17 +249,19 @@ def _planning_options(s: argparse.ArgumentParser) -> None:
         help="weight of the other objects' predicted displacement in the cost (0: ignore "
         f"them; default {CostConfig.w_disturb})",
     )  # fmt: skip
+    _feedback_option(s, "a learned model's predicted clouds over the plan's horizon")
 
 
 def _planning_configs(args: argparse.Namespace) -> dict:
-    """``planning`` and ``cost`` configs from :func:`_planning_options`' flags."""
+    """``planning``, ``cost`` and ``feedback`` settings from :func:`_planning_options`'
+    flags."""
     from planner.base import PlannerConfig
     from planner.cost import CostConfig
 
     planning = PlannerConfig(horizon=args.horizon, samples=args.samples,
                              iterations=args.iterations, elites=args.elites)  # fmt: skip
     cost = CostConfig(w_spread=args.spread_weight, w_disturb=args.disturb_weight)
-    return {"planning": planning, "cost": cost}
+    return {"planning": planning, "cost": cost, "feedback": args.feedback}
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
@@ -362,6 +374,7 @@ def _parser() -> argparse.ArgumentParser:
         default=1,
         help="train on N-step rollouts with predictions fed back, as the planner rolls the model",
     )
+    _feedback_option(s, "the predictions of a multi-step training rollout")
     s.add_argument("--init", default=None, help="start from this checkpoint's weights (fine-tune)")
     s.add_argument(
         "--later-fraction",
@@ -417,6 +430,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--max-examples", type=int, default=2000, help="test examples to use")
     _noise_option(s, "test under the paper's robustness noise (Table 2)")
     s.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or mps")
+    _feedback_option(s, "the predictions of the fed-back rows")
     s.set_defaults(run=_cmd_eval)
 
     s = sub.add_parser("trials", help="closed-loop trials with success rates")

@@ -79,8 +79,8 @@ class DepthCamera:
         self.max_depth_m = cfg.max_depth_m
         self.T_world_cam = look_at(np.array(cfg.position_m), np.array(cfg.target_m))
         self.T_cam_world = invert(self.T_world_cam)
-        f = 0.5 * self.height / np.tan(np.deg2rad(cfg.fovy_deg) / 2)
-        self.K = np.array([[f, 0, self.width / 2], [0, f, self.height / 2], [0, 0, 1.0]])
+        self.K = intrinsics(cfg, self.width, self.height)
+        f = self.K[0, 0]
         v, u = np.mgrid[0 : self.height, 0 : self.width]
         rays = np.stack(
             [(u + 0.5 - self.K[0, 2]) / f, (v + 0.5 - self.K[1, 2]) / f, np.ones(u.shape)], -1
@@ -115,6 +115,13 @@ class DepthCamera:
         z = points_cam[..., 2:3]
         uv = points_cam[..., :2] / np.where(np.abs(z) < 1e-12, 1e-12, z)
         return uv * self.K[0, 0] + self.K[:2, 2]
+
+
+def intrinsics(cfg: CameraConfig, width: int, height: int) -> np.ndarray:
+    """(3,3) the pinhole matrix of a ``width`` x ``height`` image with the scenario's vertical
+    field of view (square pixels, principal point at the image centre)."""
+    f = 0.5 * height / np.tan(np.deg2rad(cfg.fovy_deg) / 2)
+    return np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1.0]])
 
 
 def transform_by_part(points: np.ndarray, part: np.ndarray, T_part: np.ndarray) -> np.ndarray:

@@ -161,8 +161,12 @@ def test_eval_writes_the_table_json_and_pictures(tiny_data, tmp_path):
     assert (tmp_path / "eval" / "se3_examples.png").read_bytes()[:4] == b"\x89PNG"
 
 
-def test_rollout_training_follows_the_planner_and_lowers_the_rollout_loss(tiny_data, tmp_path):
+@pytest.mark.parametrize("feedback", ["grid", "rendered"])
+def test_rollout_training_follows_the_planner_and_lowers_the_rollout_loss(
+    tiny_data, tmp_path, feedback
+):
     from planner.dynamics import LearnedDynamics, PlanState
+    from se3net.rollout import reprojection
     from se3net.train import rollout_loss
 
     torch.manual_seed(0)
@@ -176,9 +180,9 @@ def test_rollout_training_follows_the_planner_and_lowers_the_rollout_loss(tiny_d
         if (ds[i]["target"][-1] - ds[i]["points"]).norm(dim=0)[ds[i]["part"] >= 2].max() > 2e-3
     ]
     b = ds.batch(moving[:4] + list(range(4)))
-    # the training rollout is the planner's rollout: same clouds, step by step
+    # the training rollout is the planner's rollout: same clouds, step by step (on the grid)
     model.eval()
-    dyn = LearnedDynamics(model, ds.scenario, name="se3net")
+    dyn = LearnedDynamics(model, ds.scenario, name="se3net", feedback="grid")
     state = PlanState(b["points"][0], b["valid"][0], b["part"][0] == 2, torch.zeros(3),
                       b["u"][0, 0, 2:], torch.from_numpy(ds.camera.T_world_cam).float(),
                       footprint_radius_m=0.05, yaw_period_rad=None)  # fmt: skip
@@ -197,12 +201,13 @@ def test_rollout_training_follows_the_planner_and_lowers_the_rollout_loss(tiny_d
     with torch.no_grad():
         model.se3_head[-1].weight.normal_(0, 0.001, generator=torch.Generator().manual_seed(0))
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)
-    first = float(rollout_loss(model, b, 3, dt).detach())
+    reproject = reprojection(feedback, ds.scenario.camera, 1)
+    first = float(rollout_loss(model, b, 3, dt, reproject=reproject).detach())
     for _ in range(200):
         opt.zero_grad()
-        rollout_loss(model, b, 3, dt).backward()
+        rollout_loss(model, b, 3, dt, reproject=reproject).backward()
         opt.step()
-    assert float(rollout_loss(model, b, 3, dt).detach()) < 0.5 * first
+    assert float(rollout_loss(model, b, 3, dt, reproject=reproject).detach()) < 0.5 * first
 
 
 def test_fine_tuning_with_rollouts_starts_from_the_checkpoint(tiny_data, tmp_path):
@@ -352,7 +357,7 @@ def test_the_split_loss_does_not_grow_with_the_static_background_the_moving_one_
 
 def test_runs_record_their_noise_and_options_and_resume_only_with_them(tiny_data, tmp_path):
     opts = dict(noise="assoc-9", loss="split", controls="film", valid_channel=True,
-                full_res_head=True, variant="flow")  # fmt: skip
+                full_res_head=True, variant="flow", feedback="rendered")  # fmt: skip
     train(_cfg(tiny_data, tmp_path / "r", **opts), progress=False)
     blob = read_checkpoint(tmp_path / "r" / "last.pt")
     assert {k: blob["train_state"]["config"][k] for k in opts} == opts
