@@ -177,9 +177,12 @@ def table_markdown(results: list[EvalResult], data: str) -> str:
     n = results[0].examples if results else 0
     which = "All episodes" if results and results[0].split == "all" else "Test split"
     noisy = f" under `{results[0].noise}` noise" if results and results[0].noise != "none" else ""
+    fed = results[0].feedback if results else "grid"
+    fed = "rendered again by the camera" if fed == "rendered" else "on the observed pixel grid"
     note = (
         f"\n{which} of `{data}`{noisy}, {n} one-step examples; flow MSE averages the squared "
-        "error over points whose true flow is non-zero (> 0.1 mm) and that stay visible.\n"
+        "error over points whose true flow is non-zero (> 0.1 mm) and that stay visible. "
+        f"Fed-back rows: each prediction fed back {fed}.\n"
     )
     return "\n".join([head, rule, *rows]) + "\n" + note
 
