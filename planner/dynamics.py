@@ -215,7 +215,6 @@ class LearnedDynamics:
         self.dt = scenario.action.dt_control_s
         self.carry_masks = carry_masks
         self.stride = model.cfg.stride  # the network sees every stride-th pixel
-        self.feedback = feedback
         self.reproject = reprojection(feedback, scenario.camera, self.stride)
 
     def network_view(self, state: PlanState) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -13,8 +13,9 @@ How a predicted cloud is fed back (``reproject``):
 - on the observed pixel grid (None, the paper's way): each point keeps the pixel it was seen
   in and only its coordinates move. A network trained on real clouds reads contact from where
   the pusher *appears* in the image, and there the pusher never moves: rolled over a push
-  that starts a few centimetres from an object, the one-step network that predicts 2 cm a
-  step from each real cloud predicts under a millimetre in all (``tests/se3net/test_rollout``);
+  that starts a few centimetres from an object, a network whose one-step predictions from
+  the real clouds along it add up to most of the motion predicts under a millimetre in all
+  (``tests/se3net/test_rollout``);
 - rendered again (a :class:`Reprojection`): the predicted points are projected into the
   camera as a depth image (the nearest point wins a pixel; a pixel uncovered by something
   that moved away takes its farthest neighbour, the background), so the next input looks like
@@ -119,8 +120,9 @@ class Reprojection:
         seen = winner >= 0
         image = points.gather(2, winner.clamp_min(0)[:, None].expand(B, 3, hw)) * seen[:, None]
         image, seen = image.view(B, 3, h, w), seen.view(B, h, w)
+        background, ids = background.bool(), torch.arange(hw, device=points.device)
         for _ in range(FILL_PASSES):  # a wide hole fills in from its edges, a pixel a pass
-            hole = ~seen & background.bool()
+            hole = ~seen & background
             if not hole.any():
                 break
             depth = torch.where(seen, image[:, 2].detach(), -torch.inf)
@@ -128,8 +130,7 @@ class Reprojection:
             best, k = near.max(1)  # the padding reads 0, seen depths are > 0
             fill = hole.flatten(1) & (best > 0)
             dy, dx = k // 3 - 1, k % 3 - 1
-            src = (torch.arange(hw, device=k.device) + dy * w + dx).clamp(0, hw - 1)
-            src = torch.where(fill, src, torch.arange(hw, device=k.device))
+            src = torch.where(fill, (ids + dy * w + dx).clamp(0, hw - 1), ids)
             flat = image.flatten(2)
             image = flat.gather(2, src[:, None].expand(B, 3, hw)).view(B, 3, h, w)
             seen = seen | fill.view(B, h, w)

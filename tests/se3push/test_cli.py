@@ -211,6 +211,25 @@ def test_study_improve_and_rollout_bad_input_is_exit_code_2(
     assert not (tmp_path / "i").exists()  # improve refuses before writing anything
 
 
+@pytest.mark.parametrize("command", ["trials", "plan-push", "train", "eval"])
+def test_an_unknown_feedback_is_exit_code_2_naming_the_known_ones(
+    command, tiny_data, tmp_path, capsys
+):
+    args = {
+        "trials": ["trials", "--scenario", "single_box", "--n", "1", "--out", str(tmp_path / "t")],
+        "train": ["train", "--data", str(tiny_data), "--out", str(tmp_path / "r")],
+        "eval": ["eval", "--data", str(tiny_data), "--checkpoints", "default",
+                 "--out", str(tmp_path / "e")],
+    }.get(command, [])  # fmt: skip
+    if command == "plan-push":
+        code = plan_push_main(["--goal", "0.16", "0", "90", "--feedback", "mirrored"])
+    else:
+        code = main([*args, "--feedback", "mirrored"])
+    assert code == 2
+    assert "--feedback must be one of grid, rendered, got 'mirrored'" in capsys.readouterr().err
+    assert not (tmp_path / "t" / "trials.jsonl").exists()  # refused before any trial ran
+
+
 def test_an_unexpected_error_inside_a_command_shows_its_traceback(monkeypatch):
     def boom():
         raise ValueError("boom")
