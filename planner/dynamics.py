@@ -9,7 +9,8 @@ positions over the horizon. Backends:
   position integrated from the commands into the control vector; the object's pose at each
   step is a least-squares rigid fit (Kabsch, in the table plane) of its predicted points
   to its current points, composed with its current pose. Differentiable end to end with
-  respect to the actions.
+  respect to the actions. With a contact margin, a predicted motion of an object counts only
+  at the steps where something could touch it (:func:`contact_gate`).
 - ``OracleDynamics``: the MuJoCo world itself, copied and simulated for each candidate: the
   upper bound any learned model is measured against.
 - ``NoMotionDynamics``: nothing but the pusher moves: the lower bound.
@@ -30,6 +31,7 @@ import torch
 from scenarios import InputError, Scenario
 from se3net.data import subsample
 from se3net.rollout import pusher_path, reprojection, rollout
+from sim.planar import wrap_angle
 
 if TYPE_CHECKING:
     from sim import PushWorld
@@ -63,6 +65,8 @@ class PlanState:
     """(M,3) the poses of the other objects on the table (None or M = 0: there are none)"""
     other_masks: torch.Tensor | None = None
     """(M,H,W) bool, their pixels"""
+    other_radii_m: tuple[float, ...] | None = None
+    """the radii of the circles that hold their footprints (None: not known)"""
 
     @property
     def n_others(self) -> int:
@@ -105,6 +109,54 @@ class Rollout:
     the RMS over members of the deviation of the object's footprint from the mean pose)"""
     other_poses: torch.Tensor | None = None
     """(K,H,M,3) the other objects' predicted poses after each step (None: no others)"""
+
+
+CONTACT_SOFTNESS_M = 0.002
+"""how sharply :func:`contact_gate` closes: over a few millimetres beyond the reach, so that
+its gradient is finite"""
+
+
+def segment_distance(p: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """(K,) the distance from points ``p`` to the segments from ``a`` to ``b`` (each (K,2))."""
+    ab = b - a
+    t = (((p - a) * ab).sum(-1) / ((ab**2).sum(-1) + 1e-12)).clamp(0, 1)
+    return ((a + t[:, None] * ab - p) ** 2).sum(-1).add(1e-12).sqrt()
+
+
+def contact_gate(
+    poses: torch.Tensor, start: torch.Tensor, movers: list[tuple[torch.Tensor, float]]
+) -> torch.Tensor:
+    """(K,H,3) an object's predicted poses with every step's motion kept only where a mover
+    could touch it: nothing moves an object from afar.
+
+    A step's predicted motion is scaled by the gate of the nearest mover: 1 where the
+    mover's path over the step (``path[:, h]`` to ``path[:, h + 1]``, (K,H+1,2)) passes
+    within its ``reach`` of where the object is, falling to 0 over a few millimetres
+    (``CONTACT_SOFTNESS_M``) beyond it. A learned model predicts small motions of objects
+    nothing touches; a planner that believes them avoids pushes that would move the object
+    away (or seeks ones that would not move it at all), the oracle has no such motions.
+
+    Args:
+        poses: (K,H,3) the predicted poses after each step.
+        start: (3,) the pose before the first.
+        movers: (path (K,H+1,2), reach m) of each thing that can push the object.
+    """
+    K, H, _ = poses.shape
+    gated, before, now = [], start.expand(K, 3), start.expand(K, 3)
+    for h in range(H):
+        step = poses[:, h] - before
+        step = torch.cat([step[:, :2], wrap_angle(step[:, 2:])], 1)
+        gate = torch.stack(
+            [
+                torch.sigmoid((reach - segment_distance(now[:, :2], path[:, h], path[:, h + 1]))
+                              / CONTACT_SOFTNESS_M)
+                for path, reach in movers
+            ]
+        ).amax(0)  # fmt: skip
+        now = now + gate[:, None] * step
+        before = poses[:, h]
+        gated.append(now)
+    return torch.stack(gated, 1)
 
 
 class Dynamics(Protocol):
@@ -193,6 +245,10 @@ class LearnedDynamics:
         carry_masks: keep the first step's masks over the horizon (``se3net.rollout``).
         feedback: how each predicted cloud is fed back (``se3net.rollout.FEEDBACK``):
             ``rendered`` again by the scenario's camera, or on the observed ``grid``.
+        contact_margin_m: None: every predicted motion counts. A distance: an object's
+            predicted motion at a step counts only where the pusher's path (or, for the other
+            objects, the pushed object's) passes within their two footprint radii and this
+            margin of it (:func:`contact_gate`).
     """
 
     differentiable = True
@@ -206,6 +262,7 @@ class LearnedDynamics:
         device: str = "cpu",
         carry_masks: bool = False,
         feedback: str = "grid",
+        contact_margin_m: float | None = None,
     ):
         # planning differentiates with respect to the actions only: a frozen copy of the
         # weights spares the backward pass their gradients (grad and SQP planners) and leaves
@@ -216,6 +273,8 @@ class LearnedDynamics:
         self.carry_masks = carry_masks
         self.stride = model.cfg.stride  # the network sees every stride-th pixel
         self.reproject = reprojection(feedback, scenario.camera, self.stride)
+        self.contact_margin = check_contact_margin(contact_margin_m)
+        self.pusher_radius = scenario.arm.pusher_radius_m
 
     def network_view(self, state: PlanState) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """What the network sees of a state, on its device: the cloud (3,h,w), the valid
@@ -257,19 +316,39 @@ class LearnedDynamics:
                 poses.append(torch.cat([xy, (pose0[2] + yaw)[:, None]], 1))
             return torch.stack(poses, 1)
 
-        poses = track(obj, state.object_pose.to(self.device))
+        start = state.object_pose.to(self.device)
+        poses = track(obj, start)
+        margin = self.contact_margin
+        if margin is not None:
+            pusher_from = torch.cat([state.pusher_xy.to(pusher).expand(K, 1, 2), pusher], 1)
+            reach = state.footprint_radius_m + self.pusher_radius + margin
+            poses = contact_gate(poses, start, [(pusher_from, reach)])
         others = None
         if state.n_others:
             masks = subsample(state.other_masks.to(self.device), self.stride)
             starts = state.other_poses.to(self.device)
-            others = torch.stack([track(m, p) for m, p in zip(masks, starts, strict=True)], 2)
-            others = others.to(caller)
+            others = [track(m, p) for m, p in zip(masks, starts, strict=True)]
+            if margin is not None and state.other_radii_m is not None:
+                pushed_from = torch.cat([start[:2].expand(K, 1, 2), poses[..., :2]], 1)
+                others = [
+                    contact_gate(o, p, [(pusher_from, r + self.pusher_radius + margin),
+                                        (pushed_from, r + state.footprint_radius_m + margin)])
+                    for o, p, r in zip(others, starts, state.other_radii_m, strict=True)
+                ]  # fmt: skip
+            others = torch.stack(others, 2).to(caller)
         return Rollout(
             poses.to(caller),
             pusher.to(caller),
             torch.stack(predicted, 1).to(caller) if clouds else None,
             other_poses=others,
         )
+
+
+def check_contact_margin(margin_m: float | None) -> float | None:
+    """The contact margin (m), or an InputError saying what is wrong."""
+    if margin_m is not None and not (np.isfinite(margin_m) and margin_m >= 0):
+        raise InputError(f"--contact-margin must be a distance >= 0 in metres, got {margin_m}")
+    return margin_m
 
 
 def _to_world(T_world_cam: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
@@ -327,11 +406,13 @@ def make_dynamics(
     world: PushWorld | None = None,
     object_index: int = 0,
     feedback: str = "grid",
+    contact_margin_m: float | None = None,
 ) -> Dynamics:
     """A backend by name: ``se3net``/``flow`` (a checkpoint; the shipped model by default;
     checkpoints joined by ``+``: an ensemble of them), ``oracle`` (needs the ``world`` and
     the pushed object's index) or ``no-motion``; ``feedback``: how a learned one feeds its
-    predicted clouds back (``se3net.rollout.FEEDBACK``).
+    predicted clouds back (``se3net.rollout.FEEDBACK``); ``contact_margin_m``: within what
+    margin of touch a learned one's predicted motions count (``contact_gate``).
 
     Raises:
         ValueError: an unknown name. CheckpointError: a model that does not fit the scenario.
@@ -351,12 +432,26 @@ def make_dynamics(
             parts = model.split(ENSEMBLE_SEP)
             return EnsembleDynamics(
                 [
-                    make_dynamics(name, scenario, model=m, device=device, feedback=feedback)
+                    make_dynamics(
+                        name,
+                        scenario,
+                        model=m,
+                        device=device,
+                        feedback=feedback,
+                        contact_margin_m=contact_margin_m,
+                    )
                     for m in parts
                 ]
             )
 
         net, blob = load_checkpoint(model or "default", scenario=scenario, device=device)
         kind = "flow" if blob["model"]["variant"].startswith("flow") else "se3net"
-        return LearnedDynamics(net, scenario, name=kind, device=device, feedback=feedback)
+        return LearnedDynamics(
+            net,
+            scenario,
+            name=kind,
+            device=device,
+            feedback=feedback,
+            contact_margin_m=contact_margin_m,
+        )
     raise ValueError(f"unknown dynamics backend {name!r}; known: {', '.join(BACKENDS)}")

@@ -14,6 +14,7 @@ import torch
 from planner import Planner, PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
 from planner.cost import CostConfig
 from planner.diagnostics import STEP_FIGURES, exploitation, step_figures
+from planner.dynamics import check_contact_margin
 from planner.viz import MeshcatVisualiser, NullVisualiser
 from scenarios import InputError, Scenario, load_scenario
 from se3net.device import check_device
@@ -59,6 +60,9 @@ class PushConfig:
     (``se3net.rollout.FEEDBACK``): rendered again by the camera, or on the observed grid"""
     cost: CostConfig = CostConfig()
     """the cost's weights (``w_spread``: an ensemble's disagreement)"""
+    contact_margin_m: float | None = None
+    """a learned model's predicted motion of an object counts only where something passes
+    within this margin of touching it (``planner.dynamics.contact_gate``; None: all counts)"""
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.action_noise <= 1.0:
@@ -67,6 +71,7 @@ class PushConfig:
             raise InputError(f"--max-steps must be a positive integer, got {self.max_steps}")
         check_device(self.device)
         check_feedback(self.feedback)
+        check_contact_margin(self.contact_margin_m)
 
 
 @dataclass
@@ -157,7 +162,12 @@ def push_planner(cfg: PushConfig, scenario: Scenario, world: PushWorld) -> Plann
         dynamics = make_dynamics(cfg.model, scenario, world=world, object_index=cfg.object_index)
     else:
         dynamics = make_dynamics(
-            "se3net", scenario, model=cfg.model, device=cfg.device, feedback=cfg.feedback
+            "se3net",
+            scenario,
+            model=cfg.model,
+            device=cfg.device,
+            feedback=cfg.feedback,
+            contact_margin_m=cfg.contact_margin_m,
         )
     return make_planner(
         cfg.planner,

@@ -29,4 +29,5 @@ def plan_state(obs: Observation, world: PushWorld, object_index: int = 0) -> Pla
             if others
             else np.zeros((0, *obs.valid.shape), bool)
         ),
+        other_radii_m=tuple(world.objects[j].footprint_radius_m for j in others),
     )

@@ -23,6 +23,7 @@ import numpy as np
 from planner.base import ONE_PLANNER_SETTINGS, PlannerConfig
 from planner.cost import CostConfig
 from planner.diagnostics import pooled
+from planner.dynamics import check_contact_margin
 from planner.loop import PushConfig, push_scenario, run_push
 from scenarios import InputError, Scenario, load_scenario
 from scenarios.config import differences
@@ -56,6 +57,9 @@ class TrialsConfig:
     """the cost's weights"""
     feedback: str = "grid"
     """how a learned model's predicted clouds are fed back (``se3net.rollout.FEEDBACK``)"""
+    contact_margin_m: float | None = None
+    """within what margin of touch a learned model's predicted motions count
+    (``planner.dynamics.contact_gate``; None: all of them)"""
 
     def __post_init__(self) -> None:
         if self.n < 1 or self.max_steps < 1:
@@ -63,6 +67,7 @@ class TrialsConfig:
                 f"--n and --max-steps must be positive, got {self.n} and {self.max_steps}"
             )
         check_feedback(self.feedback)
+        check_contact_margin(self.contact_margin_m)
 
 
 TRIAL_SET = 2
@@ -108,6 +113,7 @@ def run_trial(cfg: TrialsConfig, i: int) -> dict[str, Any]:
         planning=cfg.planning,
         cost=cfg.cost,
         feedback=cfg.feedback,
+        contact_margin_m=cfg.contact_margin_m,
     )
     result = run_push(push)
     path = [trial["start"][:2]] + [r.object_pose[:2] for r in result.records]
@@ -239,11 +245,13 @@ def _compared(meta: dict) -> dict:
     prefix: any n extends or summarises it) and the planner settings only other optimisers
     read; cost terms added later count with the weight the older runs had (none), and the
     disturbance weight not at all where the pushed object is always alone; runs from before
-    ``feedback`` fed predicted clouds back on the grid, and the simulator backends have none."""
+    ``feedback`` fed predicted clouds back on the grid and those from before the contact gate
+    had none, and the simulator backends have neither."""
     out = {k: v for k, v in meta.items() if k != "n"}
     out["feedback"] = meta.get("feedback", "grid")
+    out["contact_margin_m"] = meta.get("contact_margin_m")
     if meta.get("model") in ("oracle", "no-motion"):
-        del out["feedback"]
+        del out["feedback"], out["contact_margin_m"]
     if isinstance(meta.get("cost"), dict):  # runs from before the term had none: weight 0
         out["cost"] = {"w_disturb": 0.0, **meta["cost"]}
         if load_scenario(meta["scenario"]).objects.count[1] == 1:  # alone: the term is inert

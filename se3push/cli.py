@@ -250,18 +250,25 @@ def _planning_options(s: argparse.ArgumentParser) -> None:
         f"them; default {CostConfig.w_disturb})",
     )  # fmt: skip
     _feedback_option(s, "a learned model's predicted clouds over the plan's horizon")
+    s.add_argument(
+        "--contact-margin", type=float, default=None, metavar="M",
+        help="a learned model's predicted motion of an object counts only at steps where the "
+        "pusher (or, for another object, the pushed one) passes within M metres of touching "
+        "it (default: every predicted motion counts)",
+    )  # fmt: skip
 
 
 def _planning_configs(args: argparse.Namespace) -> dict:
-    """``planning``, ``cost`` and ``feedback`` settings from :func:`_planning_options`'
-    flags."""
+    """``planning``, ``cost``, ``feedback`` and ``contact_margin_m`` settings from
+    :func:`_planning_options`' flags."""
     from planner.base import PlannerConfig
     from planner.cost import CostConfig
 
     planning = PlannerConfig(horizon=args.horizon, samples=args.samples,
                              iterations=args.iterations, elites=args.elites)  # fmt: skip
     cost = CostConfig(w_spread=args.spread_weight, w_disturb=args.disturb_weight)
-    return {"planning": planning, "cost": cost, "feedback": args.feedback}
+    return {"planning": planning, "cost": cost, "feedback": args.feedback,
+            "contact_margin_m": args.contact_margin}  # fmt: skip
 
 
 def _cmd_study(args: argparse.Namespace) -> int:

@@ -265,3 +265,24 @@ def test_ray_gives_the_same_records_as_the_local_pool_and_resumes(ray_local, tmp
     assert lines("ray") == lines("local") == lines("resumed")
     assert main(["trials", "--scenario", "tiny", "--n", "1", "--model", "no-motion",
                  "--out", str(tmp_path / "x"), "--address", "auto"]) == 2  # fmt: skip
+
+
+def test_the_contact_margin_makes_other_trials_of_a_learned_model_only(tmp_path):
+    """A folder planned with one contact margin is not extended with another (or none); a
+    folder from before the gate had none; the simulator backends ignore it."""
+    cfg = TrialsConfig("single_box", n=1, model="default", max_steps=1, contact_margin_m=0.01)
+    run_trials(cfg, tmp_path / "gated", progress=False)
+    with pytest.raises(InputError, match="contact_margin_m: folder has 0.01, this run asks for"):
+        run_trials(replace(cfg, n=2, contact_margin_m=None), tmp_path / "gated", progress=False)
+    old = replace(cfg, contact_margin_m=None)
+    run_trials(old, tmp_path / "old", progress=False)
+    meta = json.loads((tmp_path / "old" / "config.json").read_text())
+    del meta["contact_margin_m"]
+    (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
+    assert run_trials(replace(old, n=2), tmp_path / "old", progress=False)["trials"] == 2
+    still = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1, contact_margin_m=0.01)
+    run_trials(still, tmp_path / "still", progress=False)
+    assert run_trials(replace(still, n=2, contact_margin_m=None), tmp_path / "still",
+                      progress=False)["trials"] == 2  # fmt: skip
+    with pytest.raises(InputError, match="--contact-margin must be a distance >= 0"):
+        replace(cfg, contact_margin_m=-0.01)

@@ -230,6 +230,16 @@ def test_an_unknown_feedback_is_exit_code_2_naming_the_known_ones(
     assert not (tmp_path / "t" / "trials.jsonl").exists()  # refused before any trial ran
 
 
+@pytest.mark.parametrize("margin", ["-0.01", "nan"])
+def test_a_bad_contact_margin_is_exit_code_2(margin, tmp_path, capsys):
+    code = main(["trials", "--scenario", "single_box", "--n", "1", "--contact-margin", margin,
+                 "--out", str(tmp_path / "t")])  # fmt: skip
+    assert code == 2
+    assert "--contact-margin must be a distance >= 0 in metres" in capsys.readouterr().err
+    assert plan_push_main(["--goal", "0.16", "0", "90", "--contact-margin", margin]) == 2
+    assert not (tmp_path / "t" / "trials.jsonl").exists()
+
+
 def test_an_unexpected_error_inside_a_command_shows_its_traceback(monkeypatch):
     def boom():
         raise ValueError("boom")
