@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.diagnostics import pauses
 from planner.loop import LOOSE, TIGHT
 from planner.trials import fmt, wilson
 from scenarios import InputError
@@ -168,7 +169,9 @@ def compare_trials(
         ``tolerance_m_deg``, ``trials`` (the paired indices), ``outcomes_a`` and
         ``outcomes_b`` (success per paired trial) and per folder the medians over
         those trials of ``steps`` and ``replan_ms_median`` (``median_steps_a``,
-        ``median_replan_ms_a``, ... ; None where a record lacks the figure).
+        ``median_replan_ms_a``, ... ; None where a record lacks the figure), and the median
+        of their pauses between pushes (``median_pause_a``: ``planner.diagnostics.pauses``;
+        None where a record lacks ``per_step`` or no trial paused).
 
     Raises:
         InputError: a folder is not a trial folder, the two hold different trials, they share
@@ -216,7 +219,17 @@ def compare_trials(
     for side, recs in (("a", recs_a), ("b", recs_b)):
         out[f"median_steps_{side}"] = _median([recs[i].get("steps") for i in trials])
         out[f"median_replan_ms_{side}"] = _median([recs[i].get("replan_ms_median") for i in trials])
+        out[f"median_pause_{side}"] = _median_pause([recs[i].get("per_step") for i in trials])
     return out
+
+
+def _median_pause(per_step: list[list[dict] | None]) -> float | None:
+    """Median pause between pushes over trials' ``per_step`` records (None: a record lacks
+    them, or nothing paused)."""
+    if None in per_step:
+        return None
+    every = [p for steps in per_step for p in pauses([s["actual_disp_m"] for s in steps])]
+    return float(np.median(every)) if every else None
 
 
 def _median(values: list[float | None]) -> float | None:
@@ -279,6 +292,8 @@ def format_comparison(c: dict[str, Any]) -> str:
     lines.append(
         f"median steps A {fmt(c['median_steps_a'], '.0f')}, B {fmt(c['median_steps_b'], '.0f')}; "
         f"median replan A {fmt(c['median_replan_ms_a'], '.0f')} ms, "
-        f"B {fmt(c['median_replan_ms_b'], '.0f')} ms"
+        f"B {fmt(c['median_replan_ms_b'], '.0f')} ms; "
+        f"median pause between pushes A {fmt(c['median_pause_a'], '.1f')}, "
+        f"B {fmt(c['median_pause_b'], '.1f')} steps"
     )
     return "\n".join(lines)

@@ -11,6 +11,10 @@ progress toward the goal each implies. Over a trial (or pooled over many) that g
   fraction where the model predicted less than ``MISSED_M``;
 - progress ratio: predicted over actual progress toward the goal position, summed over the
   steps (1 is an honest model; above 1 the planner is being flattered).
+
+And how the planner spends its steps: the *pauses*, runs of still steps between two steps
+that moved the object, are the steps it took to get back behind the object and push again
+(a planner shunning the short way round makes them long).
 """
 
 from __future__ import annotations
@@ -86,6 +90,13 @@ def exploitation(steps: Sequence[dict[str, float]]) -> dict[str, Any]:
             **{k: float(sum(s[k] for s in steps)) for k in SUM_KEYS},
         }
     )
+
+
+def pauses(actual_disp_m: Sequence[float]) -> list[int]:
+    """The lengths of the runs of still steps (below ``STILL_M``) between two steps that moved
+    the object, over one trial's actual displacements."""
+    moved = [i for i, d in enumerate(actual_disp_m) if d >= STILL_M]
+    return [b - a - 1 for a, b in zip(moved, moved[1:], strict=False) if b - a > 1]
 
 
 def pooled(per_trial: Iterable[dict[str, Any]]) -> dict[str, Any]:

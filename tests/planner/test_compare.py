@@ -68,7 +68,7 @@ def test_no_discordant_pairs_give_p_one_and_an_interval_around_zero():
 
 
 def _write_folder(path, tight, *, loose=None, scenario="tiny", seed=0, goals=None, replan_ms=40.0,
-                  config=True, log=True):  # fmt: skip
+                  config=True, log=True, disp_mm=None):  # fmt: skip
     """A trial folder written by hand: one record per outcome, trial i's draw fixed by i."""
     path.mkdir(parents=True)
     if config:
@@ -91,6 +91,8 @@ def _write_folder(path, tight, *, loose=None, scenario="tiny", seed=0, goals=Non
             "steps": 20 if ok else 60,
             "replan_ms_median": replan_ms,
         }
+        if disp_mm is not None:  # every trial's steps moved the object this much
+            rec["per_step"] = [{"actual_disp_m": d * 1e-3} for d in disp_mm]
         lines.append(json.dumps(rec) + "\n")
     (path / "trials.jsonl").write_text("".join(lines))
     return path
@@ -111,6 +113,15 @@ def test_compare_prints_the_paired_counts_and_test(folders, capsys):
     assert "success A 38/50 (76%), B 28/50 (56%); A wins 14, loses 4" in out
     assert "exact McNemar p = 0.031" in out and "difference +20 points" in out
     assert "median steps A 20, B 20; median replan A 40 ms, B 55 ms" in out
+
+
+def test_compare_reports_the_median_pause_between_pushes(tmp_path, capsys):
+    """A pauses 1 and 3 steps between pushes in every trial, B 6 (median 2 against 6); the
+    still steps before the first push and after the last are no pause."""
+    a = _write_folder(tmp_path / "A", [True] * 4, disp_mm=[0, 5, 0, 5, 0, 0, 0, 9, 0, 0])
+    b = _write_folder(tmp_path / "B", [True] * 4, disp_mm=[0, 0, 5, 0.5, 0, 0, 0, 0, 0, 2])
+    assert main(["compare", str(a), str(b)]) == 0
+    assert "median pause between pushes A 2.0, B 6.0 steps" in capsys.readouterr().out
 
 
 def test_compare_json_and_first_n(folders, capsys):

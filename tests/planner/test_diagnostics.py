@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from planner.diagnostics import exploitation, pooled, step_figures
+from planner.diagnostics import exploitation, pauses, pooled, step_figures
 
 
 def _step(pred_mm, act_mm, pred_prog_mm=0.0, act_prog_mm=0.0):
@@ -46,3 +46,10 @@ def test_step_figures_measure_displacement_and_progress():
     assert f["actual_disp_m"] == pytest.approx(0.05)
     assert f["predicted_progress_m"] == pytest.approx(0.1)
     assert f["actual_progress_m"] == pytest.approx(1.0 - np.hypot(1.0, 0.05))
+
+
+def test_pauses_are_the_still_runs_between_two_pushes():
+    # moved (>= 1 mm) at steps 2, 6 and 8; 0.5 mm counts as still
+    disp_mm = [0, 0, 5, 0, 0.2, 0, 2, 0.5, 3, 0, 0]
+    assert pauses([d * 1e-3 for d in disp_mm]) == [3, 1]
+    assert pauses([0.0, 0.0]) == [] and pauses([0.01, 0.01]) == []
