@@ -109,14 +109,17 @@ class Reprojection:
         B, _, N = points.shape
         hw = h * w
         on = pixel >= 0
-        slot = (torch.arange(B, device=points.device)[:, None] * hw + pixel)[on]
-        z = points[:, 2].detach()[on]
-        nearest = torch.full((B * hw,), torch.inf, dtype=z.dtype, device=z.device)
+        # every point scatters at once (no boolean indexing, which syncs and copies): a point
+        # off the image goes to a spare slot past the last pixel, dropped at the end
+        slot = torch.where(on, torch.arange(B, device=points.device)[:, None] * hw + pixel, B * hw)
+        slot, z = slot.flatten(), points[:, 2].detach().flatten()
+        nearest = torch.full((B * hw + 1,), torch.inf, dtype=z.dtype, device=z.device)
         nearest = nearest.scatter_reduce(0, slot, z, "amin")
-        wins = z == nearest[slot]
-        index = torch.arange(N, device=points.device).expand(B, N)[on]
-        winner = torch.full((B * hw,), -1, dtype=torch.long, device=z.device)
-        winner = winner.scatter_reduce(0, slot[wins], index[wins], "amax").view(B, hw)
+        wins = on.flatten() & (z == nearest.gather(0, slot))
+        index = torch.arange(N, device=points.device).repeat(B)
+        winner = torch.full((B * hw + 1,), -1, dtype=torch.long, device=z.device)
+        winner = winner.scatter_reduce(0, slot, torch.where(wins, index, -1), "amax")
+        winner = winner[:-1].view(B, hw)
         seen = winner >= 0
         image = points.gather(2, winner.clamp_min(0)[:, None].expand(B, 3, hw)) * seen[:, None]
         image, seen = image.view(B, 3, h, w), seen.view(B, h, w)
