@@ -111,6 +111,12 @@ class Rollout:
     """(K,H,M,3) the other objects' predicted poses after each step (None: no others)"""
 
 
+PLAN_FEEDBACK = "rendered"
+"""how the planner feeds a learned model's predicted clouds back over its horizon by default
+(``se3net.rollout.FEEDBACK``; the backends' own default is the paper's grid)"""
+CONTACT_MARGIN_M = 0.01
+"""the planner's default contact margin (:func:`contact_gate`; the backends' own default is
+none)"""
 CONTACT_SOFTNESS_M = 0.002
 """how sharply :func:`contact_gate` closes: over a few millimetres beyond the reach, so that
 its gradient is finite"""

@@ -29,10 +29,12 @@ from typing import Any
 
 import numpy as np
 
+from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK, check_contact_margin
 from planner.loop import PushConfig, push_scenario, run_push
 from planner.trials import TrialsConfig, draw_trial, run_trials, summary_cells, worker_backend
 from scenarios import InputError, load_scenario
 from scenarios.config import differences, scenario_dict
+from se3net.rollout import check_feedback
 from sim.dataset import (
     CONTROL_LAYOUT,
     DATA_FORMAT,
@@ -83,8 +85,14 @@ class ImproveConfig:
     eval_every: int = 250
     planner: str = "cem"
     max_steps: int = 60
+    feedback: str = PLAN_FEEDBACK
+    """how the planner feeds a learned model's predictions back (``se3net.rollout.FEEDBACK``)"""
+    contact_margin_m: float | None = CONTACT_MARGIN_M
+    """the planner's contact gate (``planner.dynamics.contact_gate``; None: off)"""
 
     def __post_init__(self) -> None:
+        check_feedback(self.feedback)
+        check_contact_margin(self.contact_margin_m)
         for name in ("scenarios", "data", "measure_only"):  # one name or path stands for one
             value = getattr(self, name)
             object.__setattr__(self, name, (value,) if isinstance(value, str) else tuple(value))
@@ -134,6 +142,7 @@ def record_trial(
     push = PushConfig(
         goal=tuple(trial["goal"]), scenario=scenario, model=model, planner=cfg.planner,
         seed=trial["reset_seed"], max_steps=cfg.max_steps, action_noise=cfg.action_noise,
+        feedback=cfg.feedback, contact_margin_m=cfg.contact_margin_m,
     )  # fmt: skip
     result = run_push(push, on_transition=on_transition)
     if current["rec"].length > 0:
@@ -267,6 +276,7 @@ def run_improve(
     if meta.exists():
         old, new = json.loads(meta.read_text()), json.loads(json.dumps(asdict(cfg)))
         old.pop("rounds", None), new.pop("rounds")  # more rounds continue a run
+        old = {"feedback": "grid", "contact_margin_m": None, **old}  # runs from before them
         if old != new:
             raise InputError(
                 f"{out} holds another improve run ({'; '.join(differences(old, new))}); "
@@ -279,7 +289,8 @@ def run_improve(
         for scenario, name in zip(cfg.measured(), names, strict=True):
             tcfg = TrialsConfig(
                 scenario=scenario, n=cfg.heldout, model=model, planner=cfg.planner,
-                seed=cfg.seed, max_steps=cfg.max_steps,
+                seed=cfg.seed, max_steps=cfg.max_steps, feedback=cfg.feedback,
+                contact_margin_m=cfg.contact_margin_m,
             )  # fmt: skip
             summary = run_trials(tcfg, out / f"round_{r}" / "heldout" / name, workers=workers,
                                  backend=backend, address=address)  # fmt: skip

@@ -14,7 +14,7 @@ import torch
 from planner import Planner, PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
 from planner.cost import CostConfig
 from planner.diagnostics import STEP_FIGURES, exploitation, step_figures
-from planner.dynamics import check_contact_margin
+from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK, check_contact_margin
 from planner.viz import MeshcatVisualiser, NullVisualiser
 from scenarios import InputError, Scenario, load_scenario
 from se3net.device import check_device
@@ -55,12 +55,12 @@ class PushConfig:
     (exploration when collecting planner-visited data; 0 = the plan's action as it is)"""
     planning: PlannerConfig = PlannerConfig()
     """the optimiser's settings (horizon, samples, iterations…; its seed is ``seed``)"""
-    feedback: str = "grid"
+    feedback: str = PLAN_FEEDBACK
     """how a learned model's predicted clouds are fed back over the horizon
     (``se3net.rollout.FEEDBACK``): rendered again by the camera, or on the observed grid"""
     cost: CostConfig = CostConfig()
     """the cost's weights (``w_spread``: an ensemble's disagreement)"""
-    contact_margin_m: float | None = None
+    contact_margin_m: float | None = CONTACT_MARGIN_M
     """a learned model's predicted motion of an object counts only where something passes
     within this margin of touching it (``planner.dynamics.contact_gate``; None: all counts)"""
 

@@ -31,9 +31,16 @@ from typing import Any
 import numpy as np
 import torch
 
-from planner.dynamics import PlanState, make_dynamics
+from planner.dynamics import (
+    CONTACT_MARGIN_M,
+    PLAN_FEEDBACK,
+    PlanState,
+    check_contact_margin,
+    make_dynamics,
+)
 from planner.trials import TrialsConfig, fmt, run_trials, summary_cells
 from scenarios import InputError
+from se3net.rollout import check_feedback
 from sim.shards import atomic_write_bytes, atomic_write_json
 
 BACKEND_MODELS = ("oracle", "no-motion")
@@ -69,8 +76,14 @@ class StudyConfig:
     max_steps: int = 60
     max_examples: int = 1000
     """held-out one-step examples (and horizon windows) per model"""
+    feedback: str = PLAN_FEEDBACK
+    """how the planner feeds a learned model's predictions back (``se3net.rollout.FEEDBACK``)"""
+    contact_margin_m: float | None = CONTACT_MARGIN_M
+    """the planner's contact gate (``planner.dynamics.contact_gate``; None: off)"""
 
     def __post_init__(self) -> None:
+        check_feedback(self.feedback)
+        check_contact_margin(self.contact_margin_m)
         if len(self.models) < 1:
             raise InputError("--models needs at least one model")
         labels = [label for label, _ in parse_models(self.models)]
@@ -103,10 +116,18 @@ def parse_models(models: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:
 
 @torch.no_grad()
 def horizon_pose_error(
-    model: str, data: str | Path, horizon: int, *, object_index: int = 0, max_windows: int = 500
+    model: str,
+    data: str | Path,
+    horizon: int,
+    *,
+    object_index: int = 0,
+    max_windows: int = 500,
+    feedback: str = PLAN_FEEDBACK,
+    contact_margin_m: float | None = CONTACT_MARGIN_M,
 ) -> dict[str, float]:
     """Mean position (cm) and yaw (deg) error of the object's predicted pose after ``horizon``
-    steps, over held-out windows where it moves, the model rolled as the planner rolls it."""
+    steps, over held-out windows where it moves, the model rolled as the planner rolls it
+    (``feedback``, ``contact_margin_m``: as ``PushConfig``'s)."""
     from se3net.data import PushDataset, evenly_spaced
     from sim import object_part, pose_errors
     from sim.dataset import episode_objects
@@ -126,7 +147,8 @@ def horizon_pose_error(
     if model == "no-motion":
         dynamics = make_dynamics("no-motion", ds.scenario)
     else:
-        dynamics = make_dynamics("se3net", ds.scenario, model=model)
+        dynamics = make_dynamics("se3net", ds.scenario, model=model, feedback=feedback,
+                                 contact_margin_m=contact_margin_m)  # fmt: skip
     T_world_cam = torch.from_numpy(ds.camera.T_world_cam).float()
     pos_err, yaw_err = [], []
     for s in range(0, len(pick), 64):
@@ -323,13 +345,21 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
         else:
             acc = {
                 **model_accuracy(model, cfg.data, max_examples=cfg.max_examples),
-                **horizon_pose_error(model, cfg.data, horizon, max_windows=cfg.max_examples),
+                **horizon_pose_error(
+                    model,
+                    cfg.data,
+                    horizon,
+                    max_windows=cfg.max_examples,
+                    feedback=cfg.feedback,
+                    contact_margin_m=cfg.contact_margin_m,
+                ),  # fmt: skip
             }
             cache.parent.mkdir(parents=True, exist_ok=True)
             atomic_write_json(cache, acc)
         trials = TrialsConfig(
             scenario=cfg.scenario, n=cfg.trials, model=model, planner=cfg.planner,
-            seed=cfg.seed, max_steps=cfg.max_steps,
+            seed=cfg.seed, max_steps=cfg.max_steps, feedback=cfg.feedback,
+            contact_margin_m=cfg.contact_margin_m,
         )  # fmt: skip
         summary = run_trials(trials, out / "trials" / safe, workers=workers)
         summary.pop("config")

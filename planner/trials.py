@@ -23,7 +23,7 @@ import numpy as np
 from planner.base import ONE_PLANNER_SETTINGS, PlannerConfig
 from planner.cost import CostConfig
 from planner.diagnostics import pooled
-from planner.dynamics import check_contact_margin
+from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK, check_contact_margin
 from planner.loop import PushConfig, push_scenario, run_push
 from scenarios import InputError, Scenario, load_scenario
 from scenarios.config import differences
@@ -55,9 +55,9 @@ class TrialsConfig:
     """the optimiser's settings (each trial's planner is seeded with its world's seed)"""
     cost: CostConfig = CostConfig()
     """the cost's weights"""
-    feedback: str = "grid"
+    feedback: str = PLAN_FEEDBACK
     """how a learned model's predicted clouds are fed back (``se3net.rollout.FEEDBACK``)"""
-    contact_margin_m: float | None = None
+    contact_margin_m: float | None = CONTACT_MARGIN_M
     """within what margin of touch a learned model's predicted motions count
     (``planner.dynamics.contact_gate``; None: all of them)"""
 

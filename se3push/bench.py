@@ -198,17 +198,32 @@ def replan_breakdown(
     return out
 
 
-def _side_by_side_replan(args: tuple[int, str | None]) -> float:
-    """One of several processes timing default replans at once (1 torch thread each)."""
+def _planning_dynamics(scenario, model: str | None, device: str = "cpu"):
+    """The SE3-Net backend as the planner runs it by default: predictions fed back rendered,
+    motion counted only within reach of touch (``PushConfig``'s defaults)."""
+    from planner import make_dynamics
+    from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK
+
+    return make_dynamics("se3net", scenario, model=model, device=device, feedback=PLAN_FEEDBACK,
+                         contact_margin_m=CONTACT_MARGIN_M)  # fmt: skip
+
+
+def _side_by_side_replan(args: tuple[int, str | None, bool]) -> float:
+    """One of several processes timing default replans at once (1 torch thread each), with
+    the backend's defaults or (``planning``) the planner's."""
     import torch
 
     from planner import PlannerConfig, PushCost, make_dynamics, make_planner
 
-    repeats, model = args
+    repeats, model, planning = args
     torch.set_num_threads(1)
     scenario, world, state, goal = _bench_state()
-    planner = make_planner("cem", make_dynamics("se3net", scenario, model=model),
-                           PushCost(scenario, goal), scenario, PlannerConfig())  # fmt: skip
+    dyn = (
+        _planning_dynamics(scenario, model)
+        if planning
+        else make_dynamics("se3net", scenario, model=model)
+    )
+    planner = make_planner("cem", dyn, PushCost(scenario, goal), scenario, PlannerConfig())
     return 1e3 * median_seconds(lambda: planner.plan(state), repeats=repeats, warmup=1)
 
 
@@ -217,7 +232,9 @@ def bench_planner(
 ) -> dict:
     """Median replan time of each optimiser with each backend at the default settings, on a
     single_box state with the pusher near the box; where the default replan's time goes; the
-    default replan in two processes side by side; and the SE3-Net rollout's
+    default replan in two processes side by side; the same two for cem with the SE3-Net as
+    the planner runs it by default (``planner_default``: fed back rendered, the contact
+    gate); and the SE3-Net rollout's
     candidate-steps/s (K = samples, H = horizon of the default config). ``model``: the
     SE3-Net checkpoint timed (default: the shipped one)."""
     import multiprocessing
@@ -260,13 +277,22 @@ def bench_planner(
     steps_per_s = cfg.samples * cfg.horizon / median_seconds(rollout, repeats=repeats)
     breakdown = replan_breakdown(times["cem/se3net"], repeats=repeats, device=device, model=model)
     with multiprocessing.get_context("fork").Pool(2) as pool:
-        pair = pool.map(_side_by_side_replan, [(repeats, model)] * 2)
+        pair = pool.map(_side_by_side_replan, [(repeats, model, False)] * 2)
+    planning = make_planner("cem", _planning_dynamics(scenario, model, device),
+                            PushCost(scenario, goal), scenario, cfg)  # fmt: skip
+    planned_ms = 1e3 * median_seconds(lambda: planning.plan(state), repeats=repeats, warmup=2)
+    with multiprocessing.get_context("fork").Pool(2) as pool:
+        planned_pair = pool.map(_side_by_side_replan, [(repeats, model, True)] * 2)
     return {
         "se3net_model": portable_path(model) if model else "default",
         "replan_ms_median": times,
         "default": "cem/se3net",
         "default_replan_breakdown_ms": breakdown,
         "default_replan_ms_two_processes": float(np.median(pair)),
+        "planner_default": {
+            "replan_ms_median": planned_ms,
+            "replan_ms_two_processes": float(np.median(planned_pair)),
+        },
         "se3net_rollout_candidate_steps_per_s": steps_per_s,
         "settings": {"samples": cfg.samples, "horizon": cfg.horizon, "iterations": cfg.iterations},
     }

@@ -215,12 +215,38 @@ def _noise_option(s: argparse.ArgumentParser, what: str) -> None:
     )  # fmt: skip
 
 
-def _feedback_option(s: argparse.ArgumentParser, what: str) -> None:
+def _feedback_option(s: argparse.ArgumentParser, what: str, default: str = "grid") -> None:
     """``--feedback``: how ``what`` is fed back (``se3net.rollout.FEEDBACK``)."""
     s.add_argument(
-        "--feedback", default="grid", metavar="grid|rendered",
-        help=f"how {what} are fed back as the next input: on the observed pixel grid "
-        "(default, the paper's way) or rendered again by the camera",
+        "--feedback", default=default, metavar="grid|rendered",
+        help=f"how {what} are fed back as the next input: on the observed pixel grid (the "
+        f"paper's way) or rendered again by the camera (default {default})",
+    )  # fmt: skip
+
+
+def _contact_margin(text: str) -> float | None:
+    """``--contact-margin``: a distance in metres, or ``off``."""
+    if text == "off":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--contact-margin takes a distance in metres or 'off', got {text!r}"
+        ) from None
+
+
+def _learned_planning_options(s: argparse.ArgumentParser) -> None:
+    """How the planner rolls a learned model: ``--feedback`` and ``--contact-margin``."""
+    from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK
+
+    _feedback_option(s, "a learned model's predicted clouds over the plan's horizon",
+                     PLAN_FEEDBACK)  # fmt: skip
+    s.add_argument(
+        "--contact-margin", type=_contact_margin, default=CONTACT_MARGIN_M, metavar="M|off",
+        help="a learned model's predicted motion of an object counts only at steps where the "
+        "pusher (or, for another object, the pushed one) passes within M metres of touching "
+        f"it (default {CONTACT_MARGIN_M}; off: every predicted motion counts)",
     )  # fmt: skip
 
 
@@ -249,13 +275,7 @@ def _planning_options(s: argparse.ArgumentParser) -> None:
         help="weight of the other objects' predicted displacement in the cost (0: ignore "
         f"them; default {CostConfig.w_disturb})",
     )  # fmt: skip
-    _feedback_option(s, "a learned model's predicted clouds over the plan's horizon")
-    s.add_argument(
-        "--contact-margin", type=float, default=None, metavar="M",
-        help="a learned model's predicted motion of an object counts only at steps where the "
-        "pusher (or, for another object, the pushed one) passes within M metres of touching "
-        "it (default: every predicted motion counts)",
-    )  # fmt: skip
+    _learned_planning_options(s)
 
 
 def _planning_configs(args: argparse.Namespace) -> dict:
@@ -276,7 +296,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
 
     cfg = StudyConfig(scenario=args.scenario, data=args.data, models=tuple(args.models),
                       trials=args.trials, seed=args.seed, planner=args.planner,
-                      max_steps=args.max_steps, max_examples=args.max_examples)  # fmt: skip
+                      max_steps=args.max_steps, max_examples=args.max_examples,
+                      feedback=args.feedback, contact_margin_m=args.contact_margin)  # fmt: skip
     result = run_study(cfg, args.out, workers=args.workers)
     print((Path(args.out) / "study.md").read_text())
     print(f"wrote {args.out}/study.md, study.json, study.png and trials/")
@@ -293,6 +314,7 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         action_noise=args.action_noise, finetune_iters=args.finetune_iters,
         rollout_steps=args.rollout_steps, lr=args.lr, planner=args.planner,
         max_steps=args.max_steps, visited_fraction=args.visited_fraction,
+        feedback=args.feedback, contact_margin_m=args.contact_margin,
     )  # fmt: skip
     run_improve(cfg, args.out, workers=args.workers, **_backend(args))
     print((Path(args.out) / "improve.md").read_text())
@@ -467,6 +489,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--trials", type=int, default=30, help="closed-loop trials per model")
     s.add_argument("--max-examples", type=int, default=1000, help="held-out examples per model")
+    _learned_planning_options(s)
     s.add_argument("--out", required=True, help="folder for study.md/.json/.png and trials/")
     s.set_defaults(run=_cmd_study)
 
@@ -503,6 +526,7 @@ def _parser() -> argparse.ArgumentParser:
         default=0.5,
         help="share of each fine-tuning batch drawn from the planner-visited data",
     )
+    _learned_planning_options(s)
     s.add_argument("--out", required=True, help="folder of the rounds (resumable)")
     _backend_options(s)
     s.set_defaults(run=_cmd_improve)

@@ -56,6 +56,8 @@ def test_model_labels_and_bad_settings():
         StudyConfig("tiny", "d", models=("runs/a/best.pt", "other/a/best.pt"))
     with pytest.raises(ValueError, match="must be positive"):
         StudyConfig("tiny", "d", models=("oracle",), trials=0)
+    with pytest.raises(ValueError, match="--contact-margin must be a distance"):
+        StudyConfig("tiny", "d", models=("oracle",), contact_margin_m=-0.01)
 
 
 @pytest.fixture(scope="module")
@@ -97,6 +99,8 @@ def test_study_end_to_end_on_tiny(study_data, tmp_path):
     assert set(saved["rank_correlation_with_success"]) == set(ACCURACY) and saved["finding"]
     assert set(saved["rank_correlation_learned_only"]) == set(ACCURACY)
     assert (tmp_path / "study" / "study.png").read_bytes()[:4] == b"\x89PNG"
+    trials = json.loads((tmp_path / "study" / "trials" / "late" / "config.json").read_text())
+    assert (trials["feedback"], trials["contact_margin_m"]) == (cfg.feedback, cfg.contact_margin_m)
     # a second run reuses the cached accuracy and the finished trials
     again = run_study(cfg, tmp_path / "study")
     assert [r["success_tight"] for r in again["rows"]] == [

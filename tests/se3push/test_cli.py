@@ -240,6 +240,20 @@ def test_a_bad_contact_margin_is_exit_code_2(margin, tmp_path, capsys):
     assert not (tmp_path / "t" / "trials.jsonl").exists()
 
 
+def test_the_contact_margin_is_a_distance_or_off(tmp_path, capsys):
+    base = ["trials", "--scenario", "tiny", "--n", "1", "--max-steps", "1", "--model", "no-motion"]
+    with pytest.raises(SystemExit) as e:
+        main([*base, "--contact-margin", "1cm", "--out", str(tmp_path / "bad")])
+    assert e.value.code == 2
+    assert "--contact-margin takes a distance in metres or 'off', got '1cm'" in (
+        capsys.readouterr().err
+    )
+    for value, recorded in (("off", None), ("0.02", 0.02)):
+        assert main([*base, "--contact-margin", value, "--out", str(tmp_path / value)]) == 0
+        config = json.loads((tmp_path / value / "config.json").read_text())
+        assert config["contact_margin_m"] == recorded
+
+
 def test_an_unexpected_error_inside_a_command_shows_its_traceback(monkeypatch):
     def boom():
         raise ValueError("boom")
@@ -301,3 +315,5 @@ def test_bench_planner_writes_every_pair(tmp_path):
             assert f"{planner}/{backend}" in times
     assert times["grad/oracle"] is None and times["cem/oracle"] > times["cem/no-motion"] > 0
     assert figures["se3net_rollout_candidate_steps_per_s"] > 0
+    planned = figures["planner_default"]
+    assert planned["replan_ms_median"] > 0 and planned["replan_ms_two_processes"] > 0
