@@ -139,8 +139,8 @@ def contact_gate(
     mover's path over the step (``path[:, h]`` to ``path[:, h + 1]``, (K,H+1,2)) passes
     within its ``reach`` of where the object is, falling to 0 over a few millimetres
     (``CONTACT_SOFTNESS_M``) beyond it. A learned model predicts small motions of objects
-    nothing touches; a planner that believes them avoids pushes that would move the object
-    away (or seeks ones that would not move it at all), the oracle has no such motions.
+    nothing touches, and a planner that believes them shuns moves that pass near the object
+    (or makes moves that push nothing); the simulator has no such motions.
 
     Args:
         poses: (K,H,3) the predicted poses after each step.

@@ -340,9 +340,12 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
     for label, model in parse_models(cfg.models):
         safe = label.replace("/", "_").replace("=", "_")
         cache = out / "accuracy" / f"{safe}.json"
-        if cache.exists():
-            acc = json.loads(cache.read_text())
-        else:
+        # the horizon error is the model rolled as the planner rolls it: a cache made with
+        # other planner settings (before them: the grid, no gate) is measured again
+        rolled = {"feedback": cfg.feedback, "contact_margin_m": cfg.contact_margin_m}
+        acc = json.loads(cache.read_text()) if cache.exists() else None
+        before = {"feedback": "grid", "contact_margin_m": None}
+        if acc is None or acc.pop("rolled", before) != rolled:
             acc = {
                 **model_accuracy(model, cfg.data, max_examples=cfg.max_examples),
                 **horizon_pose_error(
@@ -355,7 +358,7 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
                 ),  # fmt: skip
             }
             cache.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_json(cache, acc)
+            atomic_write_json(cache, {**acc, "rolled": rolled})
         trials = TrialsConfig(
             scenario=cfg.scenario, n=cfg.trials, model=model, planner=cfg.planner,
             seed=cfg.seed, max_steps=cfg.max_steps, feedback=cfg.feedback,

@@ -102,7 +102,17 @@ def test_study_end_to_end_on_tiny(study_data, tmp_path):
     trials = json.loads((tmp_path / "study" / "trials" / "late" / "config.json").read_text())
     assert (trials["feedback"], trials["contact_margin_m"]) == (cfg.feedback, cfg.contact_margin_m)
     # a second run reuses the cached accuracy and the finished trials
+    cache = tmp_path / "study" / "accuracy" / "late.json"
+    cached = json.loads(cache.read_text())
+    assert cached["rolled"] == {"feedback": cfg.feedback, "contact_margin_m": cfg.contact_margin_m}
+    cache.write_text(json.dumps({**cached, "horizon_pos_err_cm": 99.0}))
     again = run_study(cfg, tmp_path / "study")
     assert [r["success_tight"] for r in again["rows"]] == [
         r["success_tight"] for r in rows.values()
     ]
+    assert again["rows"][-1]["horizon_pos_err_cm"] == 99.0 and "rolled" not in again["rows"][-1]
+    # a cache rolled otherwise (from before the planner's options: the grid, no gate) is not
+    cache.write_text(json.dumps({k: v for k, v in cached.items() if k != "rolled"}
+                                | {"horizon_pos_err_cm": 99.0}))  # fmt: skip
+    measured = run_study(cfg, tmp_path / "study")["rows"][-1]["horizon_pos_err_cm"]
+    assert measured == pytest.approx(rows["late"]["horizon_pos_err_cm"])
