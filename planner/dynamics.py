@@ -30,7 +30,7 @@ import torch
 
 from scenarios import InputError, Scenario
 from se3net.data import subsample
-from se3net.rollout import pusher_path, reprojection, rollout
+from se3net.rollout import check_feedback, pusher_path, reprojection, rollout
 from sim.planar import wrap_angle
 
 if TYPE_CHECKING:
@@ -117,6 +117,9 @@ PLAN_FEEDBACK = "rendered"
 CONTACT_MARGIN_M = 0.01
 """the planner's default contact margin (:func:`contact_gate`; the backends' own default is
 none)"""
+ROLLOUT_BEFORE_OPTIONS = {"feedback": "grid", "contact_margin_m": None}
+"""how the planner rolled a learned model before ``feedback`` and ``contact_margin_m`` were
+settings: what a record without them was made with"""
 CONTACT_SOFTNESS_M = 0.002
 """how sharply :func:`contact_gate` closes: over a few millimetres beyond the reach, so that
 its gradient is finite"""
@@ -355,6 +358,12 @@ def check_contact_margin(margin_m: float | None) -> float | None:
     if margin_m is not None and not (np.isfinite(margin_m) and margin_m >= 0):
         raise InputError(f"--contact-margin must be a distance >= 0 in metres, got {margin_m}")
     return margin_m
+
+
+def check_planner_rollout(feedback: str, contact_margin_m: float | None) -> None:
+    """An InputError for a bad ``--feedback`` or ``--contact-margin`` of the planner's."""
+    check_feedback(feedback)
+    check_contact_margin(contact_margin_m)
 
 
 def _to_world(T_world_cam: torch.Tensor, points: torch.Tensor) -> torch.Tensor:

@@ -29,12 +29,16 @@ from typing import Any
 
 import numpy as np
 
-from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK, check_contact_margin
+from planner.dynamics import (
+    CONTACT_MARGIN_M,
+    PLAN_FEEDBACK,
+    ROLLOUT_BEFORE_OPTIONS,
+    check_planner_rollout,
+)
 from planner.loop import PushConfig, push_scenario, run_push
 from planner.trials import TrialsConfig, draw_trial, run_trials, summary_cells, worker_backend
 from scenarios import InputError, load_scenario
 from scenarios.config import differences, scenario_dict
-from se3net.rollout import check_feedback
 from sim.dataset import (
     CONTROL_LAYOUT,
     DATA_FORMAT,
@@ -91,8 +95,7 @@ class ImproveConfig:
     """the planner's contact gate (``planner.dynamics.contact_gate``; None: off)"""
 
     def __post_init__(self) -> None:
-        check_feedback(self.feedback)
-        check_contact_margin(self.contact_margin_m)
+        check_planner_rollout(self.feedback, self.contact_margin_m)
         for name in ("scenarios", "data", "measure_only"):  # one name or path stands for one
             value = getattr(self, name)
             object.__setattr__(self, name, (value,) if isinstance(value, str) else tuple(value))
@@ -276,7 +279,7 @@ def run_improve(
     if meta.exists():
         old, new = json.loads(meta.read_text()), json.loads(json.dumps(asdict(cfg)))
         old.pop("rounds", None), new.pop("rounds")  # more rounds continue a run
-        old = {"feedback": "grid", "contact_margin_m": None, **old}  # runs from before them
+        old = {**ROLLOUT_BEFORE_OPTIONS, **old}  # runs from before the planner's options
         if old != new:
             raise InputError(
                 f"{out} holds another improve run ({'; '.join(differences(old, new))}); "

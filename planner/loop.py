@@ -14,11 +14,10 @@ import torch
 from planner import Planner, PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
 from planner.cost import CostConfig
 from planner.diagnostics import STEP_FIGURES, exploitation, step_figures
-from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK, check_contact_margin
+from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK, check_planner_rollout
 from planner.viz import MeshcatVisualiser, NullVisualiser
 from scenarios import InputError, Scenario, load_scenario
 from se3net.device import check_device
-from se3net.rollout import check_feedback
 from sim import Observation, PushWorld
 from sim.planar import pose_errors
 
@@ -70,8 +69,7 @@ class PushConfig:
         if self.max_steps < 1:
             raise InputError(f"--max-steps must be a positive integer, got {self.max_steps}")
         check_device(self.device)
-        check_feedback(self.feedback)
-        check_contact_margin(self.contact_margin_m)
+        check_planner_rollout(self.feedback, self.contact_margin_m)
 
 
 @dataclass

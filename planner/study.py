@@ -34,13 +34,13 @@ import torch
 from planner.dynamics import (
     CONTACT_MARGIN_M,
     PLAN_FEEDBACK,
+    ROLLOUT_BEFORE_OPTIONS,
     PlanState,
-    check_contact_margin,
+    check_planner_rollout,
     make_dynamics,
 )
 from planner.trials import TrialsConfig, fmt, run_trials, summary_cells
 from scenarios import InputError
-from se3net.rollout import check_feedback
 from sim.shards import atomic_write_bytes, atomic_write_json
 
 BACKEND_MODELS = ("oracle", "no-motion")
@@ -82,8 +82,7 @@ class StudyConfig:
     """the planner's contact gate (``planner.dynamics.contact_gate``; None: off)"""
 
     def __post_init__(self) -> None:
-        check_feedback(self.feedback)
-        check_contact_margin(self.contact_margin_m)
+        check_planner_rollout(self.feedback, self.contact_margin_m)
         if len(self.models) < 1:
             raise InputError("--models needs at least one model")
         labels = [label for label, _ in parse_models(self.models)]
@@ -341,11 +340,10 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
         safe = label.replace("/", "_").replace("=", "_")
         cache = out / "accuracy" / f"{safe}.json"
         # the horizon error is the model rolled as the planner rolls it: a cache made with
-        # other planner settings (before them: the grid, no gate) is measured again
+        # other planner settings (one from before them: ROLLOUT_BEFORE_OPTIONS) is measured again
         rolled = {"feedback": cfg.feedback, "contact_margin_m": cfg.contact_margin_m}
         acc = json.loads(cache.read_text()) if cache.exists() else None
-        before = {"feedback": "grid", "contact_margin_m": None}
-        if acc is None or acc.pop("rolled", before) != rolled:
+        if acc is None or acc.pop("rolled", ROLLOUT_BEFORE_OPTIONS) != rolled:
             acc = {
                 **model_accuracy(model, cfg.data, max_examples=cfg.max_examples),
                 **horizon_pose_error(

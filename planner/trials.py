@@ -23,11 +23,15 @@ import numpy as np
 from planner.base import ONE_PLANNER_SETTINGS, PlannerConfig
 from planner.cost import CostConfig
 from planner.diagnostics import pooled
-from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK, check_contact_margin
+from planner.dynamics import (
+    CONTACT_MARGIN_M,
+    PLAN_FEEDBACK,
+    ROLLOUT_BEFORE_OPTIONS,
+    check_planner_rollout,
+)
 from planner.loop import PushConfig, push_scenario, run_push
 from scenarios import InputError, Scenario, load_scenario
 from scenarios.config import differences
-from se3net.rollout import check_feedback
 from sim import PushWorld
 from sim.jobs import Backend, run_jobs
 from sim.planar import pose_errors
@@ -66,8 +70,7 @@ class TrialsConfig:
             raise InputError(
                 f"--n and --max-steps must be positive, got {self.n} and {self.max_steps}"
             )
-        check_feedback(self.feedback)
-        check_contact_margin(self.contact_margin_m)
+        check_planner_rollout(self.feedback, self.contact_margin_m)
 
 
 TRIAL_SET = 2
@@ -248,10 +251,10 @@ def _compared(meta: dict) -> dict:
     ``feedback`` fed predicted clouds back on the grid and those from before the contact gate
     had none, and the simulator backends have neither."""
     out = {k: v for k, v in meta.items() if k != "n"}
-    out["feedback"] = meta.get("feedback", "grid")
-    out["contact_margin_m"] = meta.get("contact_margin_m")
+    out |= {k: meta.get(k, before) for k, before in ROLLOUT_BEFORE_OPTIONS.items()}
     if meta.get("model") in ("oracle", "no-motion"):
-        del out["feedback"], out["contact_margin_m"]
+        for k in ROLLOUT_BEFORE_OPTIONS:
+            del out[k]
     if isinstance(meta.get("cost"), dict):  # runs from before the term had none: weight 0
         out["cost"] = {"w_disturb": 0.0, **meta["cost"]}
         if load_scenario(meta["scenario"]).objects.count[1] == 1:  # alone: the term is inert
