@@ -3,7 +3,8 @@ and the SQP planner linearises them (Gauss-Newton).
 
 Per step h of a rollout: the object's position error and symmetry-aware yaw error to the goal
 (the terminal step weighted more than the running steps), a shaping term that draws the pusher
-to the object's far side from the goal while the object is predicted not to move, penalties
+to the object's far side from the goal (once behind it, only while the object is predicted not
+to move), penalties
 on action size and change, a penalty for the pusher leaving the workspace, and, with an
 ensemble of models, a penalty on their disagreement (the planner keeps to what they agree on),
 and, among other objects, a penalty on their predicted displacement (it keeps them in place).
@@ -11,7 +12,11 @@ and, among other objects, a penalty on their predicted displacement (it keeps th
 The shaping target goes round the object: a pusher on the goal's side of it is drawn to a
 waypoint on a circle about the object, a step round toward the far side, not straight at the
 pre-push point through the object (which would push it the wrong way, and with a short
-horizon trap the planner there).
+horizon trap the planner there). Until the pusher is behind the object, predicted motion does
+not fade the shaping term: with the pusher on the wrong side, motion is a push the wrong way
+or a learned model's phantom (a few millimetres predicted beside an object nothing touches),
+and a quadratic pose cost centimetres from the goal weighs those millimetres above the way
+round, so the pusher would hover beside the object chasing them.
 """
 
 from __future__ import annotations
@@ -24,6 +29,13 @@ import torch
 from planner.dynamics import PlanState, Rollout
 from scenarios import InputError, Scenario
 from sim.planar import wrap_angle
+
+SHAPING_FADES = ("behind", "everywhere")
+"""where predicted motion may fade the shaping term (``CostConfig.shaping_fade``)"""
+
+COST_BEFORE_OPTIONS = {"w_disturb": 0.0, "shaping_fade": "everywhere"}
+"""cost settings added later, as the records made before them had them (no disturbance term;
+the shaping term faded wherever the pusher was)"""
 
 
 @dataclass(frozen=True)
@@ -41,7 +53,7 @@ class CostConfig:
     w_terminal: float = 1.0
     """weight of the pose error at the last step"""
     w_shaping: float = 0.5
-    """weight of the pusher's distance to the pre-push point, while nothing moves"""
+    """weight of the pusher's distance to the shaping target (faded as ``shaping_fade`` says)"""
     shaping_scale_m: float = 0.03
     """pusher distance that costs 1 in the shaping term"""
     behind_deg: float = 60.0
@@ -52,6 +64,9 @@ class CostConfig:
     """the way round keeps this much clearance between pusher and object footprint"""
     moving_m: float = 0.005
     """predicted object displacement over the horizon above which shaping fades out"""
+    shaping_fade: str = "behind"
+    """where predicted motion fades the shaping term: ``behind`` (only once the pusher is
+    behind the object) or ``everywhere`` (the cost before this option)"""
     w_action: float = 0.02
     """weight of |a|^2 / bound^2"""
     w_smooth: float = 0.05
@@ -69,7 +84,13 @@ class CostConfig:
     the others where they are"""
 
     def __post_init__(self) -> None:
+        if self.shaping_fade not in SHAPING_FADES:
+            raise InputError(
+                f"--shaping-fade is one of {', '.join(SHAPING_FADES)}, got {self.shaping_fade!r}"
+            )
         for name, value in vars(self).items():
+            if name == "shaping_fade":
+                continue
             if not (math.isfinite(value) and value >= 0):
                 flags = {"w_spread": "--spread-weight", "w_disturb": "--disturb-weight"}
                 what = flags.get(name, f"cost setting {name}")
@@ -118,15 +139,27 @@ class PushCost:
         back = state.footprint_radius_m + 0.02
         return obj - back * d
 
+    def _angle_from_behind(self, state: PlanState) -> tuple[torch.Tensor, float]:
+        """The unit vector (2,) from the object's centre toward the pre-push point, and the
+        pusher's angle (rad, signed) from it about the object's centre: 0 straight behind,
+        +-pi on the goal's side."""
+        obj = state.object_pose[:2]
+        behind = self.pre_push_point(state) - obj
+        behind = behind / behind.norm().clamp_min(1e-9)
+        rel = state.pusher_xy.to(obj) - obj
+        phi = math.atan2(float(behind[0] * rel[1] - behind[1] * rel[0]), float(behind @ rel))
+        return behind, phi
+
+    def is_behind(self, state: PlanState) -> bool:
+        """Whether the pusher is within ``behind_deg`` of straight behind the object."""
+        return abs(self._angle_from_behind(state)[1]) <= math.radians(self.cfg.behind_deg)
+
     def shaping_target(self, state: PlanState) -> torch.Tensor:
         """Where the shaping term draws the pusher: the pre-push point when the pusher is
         already behind the object, else a waypoint a step round the object toward it."""
         c = self.cfg
         obj = state.object_pose[:2]
-        behind = self.pre_push_point(state) - obj
-        behind = behind / behind.norm().clamp_min(1e-9)  # unit vector from object to pre-push
-        rel = state.pusher_xy.to(obj) - obj
-        phi = math.atan2(float(behind[0] * rel[1] - behind[1] * rel[0]), float(behind @ rel))
+        behind, phi = self._angle_from_behind(state)
         if abs(phi) <= math.radians(c.behind_deg):
             return self.pre_push_point(state)
         step = phi - math.copysign(math.radians(c.round_step_deg), phi)
@@ -159,8 +192,11 @@ class PushCost:
         moved_sq = ((rollout.object_poses[:, -1, :2] - state.object_pose[:2].to(actions)) ** 2).sum(
             -1
         )
-        # sqrt of the gate exp(-moved^2 / m^2), written without sqrt (its gradient at 0 is NaN)
+        # sqrt of the gate exp(-moved^2 / m^2), written without sqrt (its gradient at 0 is NaN);
+        # until the pusher is behind the object, predicted motion does not fade the term
         sqrt_gate = torch.exp(-0.5 * moved_sq / c.moving_m**2)
+        if c.shaping_fade == "behind" and not self.is_behind(state):
+            sqrt_gate = torch.ones_like(sqrt_gate)
         dist = (
             rollout.pusher_xy[:, -1] - self.shaping_target(state).to(actions)
         ) / c.shaping_scale_m

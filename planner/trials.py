@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from planner.base import ONE_PLANNER_SETTINGS, PlannerConfig
-from planner.cost import CostConfig
+from planner.cost import COST_BEFORE_OPTIONS, CostConfig
 from planner.diagnostics import pooled
 from planner.dynamics import (
     CONTACT_MARGIN_M,
@@ -246,17 +246,17 @@ def _names_shipped_weights(model: str) -> bool:
 def _compared(meta: dict) -> dict:
     """What makes two trial folders the same set: the configuration but ``n`` (the set is a
     prefix: any n extends or summarises it) and the planner settings only other optimisers
-    read; cost terms added later count with the weight the older runs had (none), and the
-    disturbance weight not at all where the pushed object is always alone; runs from before
-    ``feedback`` fed predicted clouds back on the grid and those from before the contact gate
-    had none, and the simulator backends have neither."""
+    read; cost settings added later count as the older runs had them
+    (``COST_BEFORE_OPTIONS``), and the disturbance weight not at all where the pushed object is
+    always alone; runs from before ``feedback`` fed predicted clouds back on the grid and those
+    from before the contact gate had none, and the simulator backends have neither."""
     out = {k: v for k, v in meta.items() if k != "n"}
     out |= {k: meta.get(k, before) for k, before in ROLLOUT_BEFORE_OPTIONS.items()}
     if meta.get("model") in ("oracle", "no-motion"):
         for k in ROLLOUT_BEFORE_OPTIONS:
             del out[k]
-    if isinstance(meta.get("cost"), dict):  # runs from before the term had none: weight 0
-        out["cost"] = {"w_disturb": 0.0, **meta["cost"]}
+    if isinstance(meta.get("cost"), dict):  # settings added later, as the runs before had them
+        out["cost"] = {**COST_BEFORE_OPTIONS, **meta["cost"]}
         if load_scenario(meta["scenario"]).objects.count[1] == 1:  # alone: the term is inert
             del out["cost"]["w_disturb"]
     if isinstance(meta.get("planning"), dict):

@@ -253,7 +253,7 @@ def _learned_planning_options(s: argparse.ArgumentParser) -> None:
 def _planning_options(s: argparse.ArgumentParser) -> None:
     """The common optimiser and cost settings of a closed-loop push."""
     from planner.base import PlannerConfig
-    from planner.cost import CostConfig
+    from planner.cost import SHAPING_FADES, CostConfig
 
     d = PlannerConfig()
     s.add_argument("--horizon", type=int, default=d.horizon,
@@ -275,6 +275,12 @@ def _planning_options(s: argparse.ArgumentParser) -> None:
         help="weight of the other objects' predicted displacement in the cost (0: ignore "
         f"them; default {CostConfig.w_disturb})",
     )  # fmt: skip
+    s.add_argument(
+        "--shaping-fade", choices=SHAPING_FADES, default=CostConfig.shaping_fade,
+        help="where predicted motion of the object fades the term that draws the pusher round "
+        "behind it: only once the pusher is behind it, or everywhere (the cost before; "
+        f"default {CostConfig.shaping_fade})",
+    )  # fmt: skip
     _learned_planning_options(s)
 
 
@@ -286,7 +292,8 @@ def _planning_configs(args: argparse.Namespace) -> dict:
 
     planning = PlannerConfig(horizon=args.horizon, samples=args.samples,
                              iterations=args.iterations, elites=args.elites)  # fmt: skip
-    cost = CostConfig(w_spread=args.spread_weight, w_disturb=args.disturb_weight)
+    cost = CostConfig(w_spread=args.spread_weight, w_disturb=args.disturb_weight,
+                      shaping_fade=args.shaping_fade)  # fmt: skip
     return {"planning": planning, "cost": cost, "feedback": args.feedback,
             "contact_margin_m": args.contact_margin}  # fmt: skip
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from planner.cost import PushCost
+from planner.cost import CostConfig, PushCost
 from planner.dynamics import PlanState
 from scenarios import load_scenario
 from sim import PushWorld
@@ -104,3 +104,53 @@ def test_the_disturbance_term_keeps_the_other_objects_in_place():
         moved[w] = float((end - state.other_poses[0, :2]).norm())
         assert info.predicted_poses[-1, 0] > 0.08  # it pushes its object toward the goal
     assert moved[0.0] > 0.03 and moved[1.0] < 0.005, moved
+
+
+class _PhantomNudge:
+    """A learned model's phantom: whenever the pusher is within ``REACH`` of the object's
+    centre, whatever it does, the object is predicted to creep ``NUDGE`` per step toward +x
+    (toward the goal), though nothing pushes it that way."""
+
+    name, differentiable, REACH, NUDGE = "toy", True, 0.07, 0.003
+
+    def __init__(self, dt):
+        self.dt = dt
+
+    def rollout(self, state, actions, *, clouds=False):
+        from planner.dynamics import Rollout, integrate_pusher
+
+        pusher = integrate_pusher(state, actions, self.dt)  # (K,H,2)
+        start = state.object_pose.to(actions)
+        near = ((pusher - start[:2]).norm(dim=-1) < self.REACH).to(actions)  # (K,H)
+        x = start[0] + self.NUDGE * torch.cumsum(near, 1)
+        y, yaw = start[1].expand_as(x), start[2].expand_as(x)
+        return Rollout(torch.stack([x, y, yaw], -1), pusher)
+
+
+@pytest.mark.parametrize("fade", ["behind", "everywhere"])
+def test_predicted_motion_does_not_stop_the_way_round_until_the_pusher_is_behind(fade):
+    """A pusher beside the object on the goal's side, a model predicting a phantom creep toward
+    the goal while the pusher stays near: with the shaping term faded only behind the object
+    the plan heads round to the far side; faded everywhere (the cost before), the phantom
+    switches the shaping off and the pusher stays where it is."""
+    import dataclasses
+
+    from planner import PlannerConfig, make_planner
+    from tests.planner.toy import toy_state
+
+    scenario = load_scenario("single_box")
+    cost = PushCost(scenario, torch.tensor([0.12, 0.0, 0.0]), CostConfig(shaping_fade=fade))
+    pusher = 0.06 * torch.tensor([math.cos(math.radians(30)), math.sin(math.radians(30))])
+    state = dataclasses.replace(toy_state(), pusher_xy=pusher)
+    assert not cost.is_behind(state)  # on the goal's side, 150 degrees round from behind
+    target = cost.shaping_target(state)
+    cfg = PlannerConfig(horizon=4, samples=64, elites=8, iterations=4)
+    dyn = _PhantomNudge(scenario.action.dt_control_s)
+    _, info = make_planner("cem", dyn, cost, scenario, cfg).plan(state)
+    U = torch.from_numpy(info.actions).float()[None]
+    end = dyn.rollout(state, U).pusher_xy[0, -1]
+    before, after = float((pusher - target).norm()), float((end - target).norm())
+    if fade == "behind":  # 7.4 cm to go, within the horizon's reach: it ends within 1 cm
+        assert after < 0.01, (before, after)
+    else:  # it stays put
+        assert after > 0.95 * before, (before, after)

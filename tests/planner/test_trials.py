@@ -286,3 +286,24 @@ def test_the_contact_margin_makes_other_trials_of_a_learned_model_only(tmp_path)
                       progress=False)["trials"] == 2  # fmt: skip
     with pytest.raises(InputError, match="--contact-margin must be a distance >= 0"):
         replace(cfg, contact_margin_m=-0.01)
+
+
+def test_a_folder_from_before_the_shaping_fade_continues_only_as_everywhere(tmp_path):
+    """Records from before ``--shaping-fade`` faded the shaping term everywhere: such a folder
+    extends with ``everywhere`` and is refused with the default; a bad setting is refused
+    (exit 2 from the command line)."""
+    cfg = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1,
+                       cost=CostConfig(shaping_fade="everywhere"))  # fmt: skip
+    run_trials(cfg, tmp_path / "old", progress=False)
+    meta = json.loads((tmp_path / "old" / "config.json").read_text())
+    del meta["cost"]["shaping_fade"]
+    (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="shaping_fade: folder has 'everywhere'"):
+        run_trials(replace(cfg, n=2, cost=CostConfig()), tmp_path / "old", progress=False)
+    assert run_trials(replace(cfg, n=2), tmp_path / "old", progress=False)["trials"] == 2
+    with pytest.raises(InputError, match="--shaping-fade is one of behind, everywhere"):
+        CostConfig(shaping_fade="never")
+    with pytest.raises(SystemExit) as e:
+        main(["trials", "--scenario", "tiny", "--n", "1", "--model", "no-motion",
+              "--shaping-fade", "never", "--out", str(tmp_path / "x")])  # fmt: skip
+    assert e.value.code == 2
