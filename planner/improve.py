@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.cost import COST_BEFORE_OPTIONS, CostConfig
 from planner.dynamics import (
     CONTACT_MARGIN_M,
     PLAN_FEEDBACK,
@@ -93,9 +94,12 @@ class ImproveConfig:
     """how the planner feeds a learned model's predictions back (``se3net.rollout.FEEDBACK``)"""
     contact_margin_m: float | None = CONTACT_MARGIN_M
     """the planner's contact gate (``planner.dynamics.contact_gate``; None: off)"""
+    shaping_fade: str = CostConfig.shaping_fade
+    """where predicted motion fades the cost's shaping term (``CostConfig.shaping_fade``)"""
 
     def __post_init__(self) -> None:
         check_planner_rollout(self.feedback, self.contact_margin_m)
+        CostConfig(shaping_fade=self.shaping_fade)  # refuses a bad one
         for name in ("scenarios", "data", "measure_only"):  # one name or path stands for one
             value = getattr(self, name)
             object.__setattr__(self, name, (value,) if isinstance(value, str) else tuple(value))
@@ -146,6 +150,7 @@ def record_trial(
         goal=tuple(trial["goal"]), scenario=scenario, model=model, planner=cfg.planner,
         seed=trial["reset_seed"], max_steps=cfg.max_steps, action_noise=cfg.action_noise,
         feedback=cfg.feedback, contact_margin_m=cfg.contact_margin_m,
+        cost=CostConfig(shaping_fade=cfg.shaping_fade),
     )  # fmt: skip
     result = run_push(push, on_transition=on_transition)
     if current["rec"].length > 0:
@@ -279,7 +284,8 @@ def run_improve(
     if meta.exists():
         old, new = json.loads(meta.read_text()), json.loads(json.dumps(asdict(cfg)))
         old.pop("rounds", None), new.pop("rounds")  # more rounds continue a run
-        old = {**ROLLOUT_BEFORE_OPTIONS, **old}  # runs from before the planner's options
+        # runs from before the planner's options had them as they were before
+        old = {**ROLLOUT_BEFORE_OPTIONS, "shaping_fade": COST_BEFORE_OPTIONS["shaping_fade"], **old}
         if old != new:
             raise InputError(
                 f"{out} holds another improve run ({'; '.join(differences(old, new))}); "
@@ -294,6 +300,7 @@ def run_improve(
                 scenario=scenario, n=cfg.heldout, model=model, planner=cfg.planner,
                 seed=cfg.seed, max_steps=cfg.max_steps, feedback=cfg.feedback,
                 contact_margin_m=cfg.contact_margin_m,
+                cost=CostConfig(shaping_fade=cfg.shaping_fade),
             )  # fmt: skip
             summary = run_trials(tcfg, out / f"round_{r}" / "heldout" / name, workers=workers,
                                  backend=backend, address=address)  # fmt: skip

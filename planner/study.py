@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from planner.cost import CostConfig
 from planner.dynamics import (
     CONTACT_MARGIN_M,
     PLAN_FEEDBACK,
@@ -80,9 +81,12 @@ class StudyConfig:
     """how the planner feeds a learned model's predictions back (``se3net.rollout.FEEDBACK``)"""
     contact_margin_m: float | None = CONTACT_MARGIN_M
     """the planner's contact gate (``planner.dynamics.contact_gate``; None: off)"""
+    shaping_fade: str = CostConfig.shaping_fade
+    """where predicted motion fades the cost's shaping term (``CostConfig.shaping_fade``)"""
 
     def __post_init__(self) -> None:
         check_planner_rollout(self.feedback, self.contact_margin_m)
+        CostConfig(shaping_fade=self.shaping_fade)  # refuses a bad one
         if len(self.models) < 1:
             raise InputError("--models needs at least one model")
         labels = [label for label, _ in parse_models(self.models)]
@@ -360,7 +364,7 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
         trials = TrialsConfig(
             scenario=cfg.scenario, n=cfg.trials, model=model, planner=cfg.planner,
             seed=cfg.seed, max_steps=cfg.max_steps, feedback=cfg.feedback,
-            contact_margin_m=cfg.contact_margin_m,
+            contact_margin_m=cfg.contact_margin_m, cost=CostConfig(shaping_fade=cfg.shaping_fade),
         )  # fmt: skip
         summary = run_trials(trials, out / "trials" / safe, workers=workers)
         summary.pop("config")

@@ -236,9 +236,19 @@ def _contact_margin(text: str) -> float | None:
         ) from None
 
 
-def _learned_planning_options(s: argparse.ArgumentParser) -> None:
-    """How the planner rolls a learned model: ``--feedback`` and ``--contact-margin``."""
+def _shared_planning_options(s: argparse.ArgumentParser) -> None:
+    """The planner's settings that study and improve share with trials and plan-push:
+    ``--shaping-fade`` (a cost setting), and how the planner rolls a learned model,
+    ``--feedback`` and ``--contact-margin``."""
+    from planner.cost import SHAPING_FADES, CostConfig
     from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK
+
+    s.add_argument(
+        "--shaping-fade", choices=SHAPING_FADES, default=CostConfig.shaping_fade,
+        help="where predicted motion of the object fades the term that draws the pusher round "
+        "behind it: only once the pusher is behind it, or everywhere (the cost before; "
+        f"default {CostConfig.shaping_fade})",
+    )  # fmt: skip
 
     _feedback_option(s, "a learned model's predicted clouds over the plan's horizon",
                      PLAN_FEEDBACK)  # fmt: skip
@@ -253,7 +263,7 @@ def _learned_planning_options(s: argparse.ArgumentParser) -> None:
 def _planning_options(s: argparse.ArgumentParser) -> None:
     """The common optimiser and cost settings of a closed-loop push."""
     from planner.base import PlannerConfig
-    from planner.cost import SHAPING_FADES, CostConfig
+    from planner.cost import CostConfig
 
     d = PlannerConfig()
     s.add_argument("--horizon", type=int, default=d.horizon,
@@ -275,13 +285,7 @@ def _planning_options(s: argparse.ArgumentParser) -> None:
         help="weight of the other objects' predicted displacement in the cost (0: ignore "
         f"them; default {CostConfig.w_disturb})",
     )  # fmt: skip
-    s.add_argument(
-        "--shaping-fade", choices=SHAPING_FADES, default=CostConfig.shaping_fade,
-        help="where predicted motion of the object fades the term that draws the pusher round "
-        "behind it: only once the pusher is behind it, or everywhere (the cost before; "
-        f"default {CostConfig.shaping_fade})",
-    )  # fmt: skip
-    _learned_planning_options(s)
+    _shared_planning_options(s)
 
 
 def _planning_configs(args: argparse.Namespace) -> dict:
@@ -304,7 +308,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
     cfg = StudyConfig(scenario=args.scenario, data=args.data, models=tuple(args.models),
                       trials=args.trials, seed=args.seed, planner=args.planner,
                       max_steps=args.max_steps, max_examples=args.max_examples,
-                      feedback=args.feedback, contact_margin_m=args.contact_margin)  # fmt: skip
+                      feedback=args.feedback, contact_margin_m=args.contact_margin,
+                      shaping_fade=args.shaping_fade)  # fmt: skip
     result = run_study(cfg, args.out, workers=args.workers)
     print((Path(args.out) / "study.md").read_text())
     print(f"wrote {args.out}/study.md, study.json, study.png and trials/")
@@ -322,6 +327,7 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         rollout_steps=args.rollout_steps, lr=args.lr, planner=args.planner,
         max_steps=args.max_steps, visited_fraction=args.visited_fraction,
         feedback=args.feedback, contact_margin_m=args.contact_margin,
+        shaping_fade=args.shaping_fade,
     )  # fmt: skip
     run_improve(cfg, args.out, workers=args.workers, **_backend(args))
     print((Path(args.out) / "improve.md").read_text())
@@ -496,7 +502,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--trials", type=int, default=30, help="closed-loop trials per model")
     s.add_argument("--max-examples", type=int, default=1000, help="held-out examples per model")
-    _learned_planning_options(s)
+    _shared_planning_options(s)
     s.add_argument("--out", required=True, help="folder for study.md/.json/.png and trials/")
     s.set_defaults(run=_cmd_study)
 
@@ -533,7 +539,7 @@ def _parser() -> argparse.ArgumentParser:
         default=0.5,
         help="share of each fine-tuning batch drawn from the planner-visited data",
     )
-    _learned_planning_options(s)
+    _shared_planning_options(s)
     s.add_argument("--out", required=True, help="folder of the rounds (resumable)")
     _backend_options(s)
     s.set_defaults(run=_cmd_improve)

@@ -58,6 +58,8 @@ def test_model_labels_and_bad_settings():
         StudyConfig("tiny", "d", models=("oracle",), trials=0)
     with pytest.raises(ValueError, match="--contact-margin must be a distance"):
         StudyConfig("tiny", "d", models=("oracle",), contact_margin_m=-0.01)
+    with pytest.raises(ValueError, match="--shaping-fade is one of behind, everywhere"):
+        StudyConfig("tiny", "d", models=("oracle",), shaping_fade="never")
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +83,7 @@ def test_study_end_to_end_on_tiny(study_data, tmp_path):
     )  # fmt: skip
     models = ("oracle", "no-motion", f"early={run}/iter_000002.pt", f"late={run}/iter_000004.pt")
     cfg = StudyConfig("tiny", str(tiny_data), models=models, trials=2, max_steps=3,
-                      max_examples=40)  # fmt: skip
+                      max_examples=40, shaping_fade="everywhere")  # fmt: skip
     result = run_study(cfg, tmp_path / "study")
     rows = {r["label"]: r for r in result["rows"]}
     assert list(rows) == ["oracle", "no-motion", "early", "late"]
@@ -101,6 +103,7 @@ def test_study_end_to_end_on_tiny(study_data, tmp_path):
     assert (tmp_path / "study" / "study.png").read_bytes()[:4] == b"\x89PNG"
     trials = json.loads((tmp_path / "study" / "trials" / "late" / "config.json").read_text())
     assert (trials["feedback"], trials["contact_margin_m"]) == (cfg.feedback, cfg.contact_margin_m)
+    assert trials["cost"]["shaping_fade"] == "everywhere"  # the study's, not the default
     # a second run reuses the cached accuracy and the finished trials
     cache = tmp_path / "study" / "accuracy" / "late.json"
     cached = json.loads(cache.read_text())
