@@ -63,7 +63,8 @@ class CostConfig:
     round_clearance_m: float = 0.02
     """the way round keeps this much clearance between pusher and object footprint"""
     moving_m: float = 0.005
-    """predicted object displacement over the horizon above which shaping fades out"""
+    """predicted object displacement over the horizon above which shaping fades out (where
+    ``shaping_fade`` lets it)"""
     shaping_fade: str = "behind"
     """where predicted motion fades the shaping term: ``behind`` (only once the pusher is
     behind the object) or ``everywhere`` (the cost before this option)"""
