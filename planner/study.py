@@ -117,6 +117,56 @@ def parse_models(models: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:
     return out
 
 
+def _moving_windows(ds, data, object_index: int, max_windows: int):
+    """Up to ``max_windows`` evenly spaced held-out windows of ``ds`` (a ``PushDataset``) where
+    the object moves more than ``HORIZON_MOVED_M``: their indices, and the object's recorded
+    poses at their two ends ((n,3) each)."""
+    from se3net.data import evenly_spaced
+
+    e, t = ds.items[:, 0], ds.items[:, 1]
+    poses = ds.a["object_poses"][:, :, object_index]  # (episodes, frames, 3), as recorded
+    start, end = poses[e, t], poses[e, t + ds.horizon]
+    moving = np.flatnonzero(np.hypot(*(end - start)[:, :2].T) > HORIZON_MOVED_M)
+    if len(moving) == 0:
+        raise InputError(f"the test split of {data} has no window where object {object_index} "
+                         f"moves over {ds.horizon} steps; generate more data")  # fmt: skip
+    pick = moving[evenly_spaced(len(moving), max_windows)]
+    return pick, start[pick], end[pick]
+
+
+def _window_states(ds, pick: np.ndarray, start: np.ndarray, object_index: int):
+    """For each picked window: the planner's state at its start (as ``plan_state`` would make
+    it), its actions (1,H,2), and the pushed object's spec."""
+    from sim import object_part
+    from sim.dataset import episode_objects
+
+    part_id = object_part(object_index)
+    T_world_cam = torch.from_numpy(ds.camera.T_world_cam).float()
+    for s in range(0, len(pick), 64):
+        b = ds.batch(pick[s : s + 64])
+        for j, i in enumerate(pick[s : s + 64]):
+            obj = episode_objects(ds.a, ds.items[i, 0])[object_index]
+            state = PlanState(
+                points=b["points"][j],
+                valid=b["valid"][j],
+                object_mask=b["part"][j] == part_id,
+                object_pose=torch.from_numpy(start[s + j]).float(),
+                pusher_xy=b["u"][j, 0, 2:],
+                T_world_cam=T_world_cam,
+                footprint_radius_m=obj.footprint_radius_m,
+                yaw_period_rad=obj.yaw_period_rad,
+            )
+            yield state, b["u"][j, None, :, :2], obj
+
+
+def study_dynamics(model: str, scenario, feedback: str, contact_margin_m: float | None):
+    """A study model as the planner rolls it: ``no-motion`` or an SE3-Net checkpoint."""
+    if model == "no-motion":
+        return make_dynamics("no-motion", scenario)
+    return make_dynamics("se3net", scenario, model=model, feedback=feedback,
+                         contact_margin_m=contact_margin_m)  # fmt: skip
+
+
 @torch.no_grad()
 def horizon_pose_error(
     model: str,
@@ -131,53 +181,85 @@ def horizon_pose_error(
     """Mean position (cm) and yaw (deg) error of the object's predicted pose after ``horizon``
     steps, over held-out windows where it moves, the model rolled as the planner rolls it
     (``feedback``, ``contact_margin_m``: as ``PushConfig``'s)."""
-    from se3net.data import PushDataset, evenly_spaced
-    from sim import object_part, pose_errors
-    from sim.dataset import episode_objects
+    from se3net.data import PushDataset
+    from sim import pose_errors
 
     ds = PushDataset(data, split="test", horizon=horizon)
-    part_id = object_part(object_index)
-    e, t = ds.items[:, 0], ds.items[:, 1]
-    poses = ds.a["object_poses"][:, :, object_index]  # (episodes, frames, 3), as recorded
-    start, end = poses[e, t], poses[e, t + horizon]
-    moving = np.flatnonzero(np.hypot(*(end - start)[:, :2].T) > HORIZON_MOVED_M)
-    if len(moving) == 0:
-        raise InputError(f"the test split of {data} has no window where object {object_index} "
-                         f"moves over {horizon} steps; generate more data")  # fmt: skip
-    pick = moving[evenly_spaced(len(moving), max_windows)]
+    pick, start, end = _moving_windows(ds, data, object_index, max_windows)
     if model == "oracle":  # the simulator itself (tested against the world to 1e-6)
         return {"horizon_pos_err_cm": 0.0, "horizon_yaw_err_deg": 0.0, "windows": len(pick)}
-    if model == "no-motion":
-        dynamics = make_dynamics("no-motion", ds.scenario)
-    else:
-        dynamics = make_dynamics("se3net", ds.scenario, model=model, feedback=feedback,
-                                 contact_margin_m=contact_margin_m)  # fmt: skip
-    T_world_cam = torch.from_numpy(ds.camera.T_world_cam).float()
+    dynamics = study_dynamics(model, ds.scenario, feedback, contact_margin_m)
     pos_err, yaw_err = [], []
-    for s in range(0, len(pick), 64):
-        idx = pick[s : s + 64]
-        b = ds.batch(idx)
-        for j, i in enumerate(idx):
-            obj = episode_objects(ds.a, e[i])[object_index]
-            state = PlanState(
-                points=b["points"][j],
-                valid=b["valid"][j],
-                object_mask=b["part"][j] == part_id,
-                object_pose=torch.from_numpy(start[i]).float(),
-                pusher_xy=b["u"][j, 0, 2:],
-                T_world_cam=T_world_cam,
-                footprint_radius_m=obj.footprint_radius_m,
-                yaw_period_rad=obj.yaw_period_rad,
-            )
-            pred = dynamics.rollout(state, b["u"][j, None, :, :2]).object_poses[0, -1].numpy()
-            pos, yaw = pose_errors(pred, end[i], obj.yaw_period_rad)
-            pos_err.append(pos)
-            yaw_err.append(yaw)
+    for k, (state, actions, obj) in enumerate(_window_states(ds, pick, start, object_index)):
+        pred = dynamics.rollout(state, actions).object_poses[0, -1].numpy()
+        pos, yaw = pose_errors(pred, end[k], obj.yaw_period_rad)
+        pos_err.append(pos)
+        yaw_err.append(yaw)
     return {
         "horizon_pos_err_cm": 100 * float(np.mean(pos_err)),
         "horizon_yaw_err_deg": float(np.mean(yaw_err)),
         "windows": len(pick),
     }
+
+
+OFF_CENTRE_BINS_DEG = ((0, 15), (15, 30), (30, 45), (45, 90))
+"""how far off the object's centre a push was aimed (deg), the bins of ``push_deflection``"""
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """The unsigned angle (deg) between two planar vectors."""
+    c = float(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b) + 1e-12)
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+@torch.no_grad()
+def push_deflection(
+    dynamics,
+    data: str | Path,
+    *,
+    object_index: int = 0,
+    max_windows: int = 2000,
+) -> list[dict[str, Any]]:
+    """How far a push turns the object's motion away from the pusher's, and how far the model
+    says it does, over one-step held-out windows where the object moves.
+
+    A push aimed off the object's centre (the angle between the pusher's commanded velocity
+    and the line from the pusher to the centre) deflects the object: a round one moves along
+    the contact normal, not the pusher's way. One row per object shape and off-centre bin
+    (``OFF_CENTRE_BINS_DEG``): the windows, and the medians of the true and the predicted
+    deflection (deg from the pusher's velocity), of the angle between the predicted and the
+    true displacement, and of their length ratio. ``dynamics``: a backend as the planner
+    rolls it (``make_dynamics``).
+    """
+    from se3net.data import PushDataset
+
+    ds = PushDataset(data, split="test", horizon=1)
+    pick, start, end = _moving_windows(ds, data, object_index, max_windows)
+    cells: dict[tuple[str, int], list[tuple[float, ...]]] = {}
+    for k, (state, actions, obj) in enumerate(_window_states(ds, pick, start, object_index)):
+        v = actions[0, 0].numpy()
+        to_centre = start[k, :2] - state.pusher_xy.numpy()
+        if np.linalg.norm(v) < 1e-6 or np.linalg.norm(to_centre) < 1e-6:
+            continue  # no push to measure from
+        off = _angle_deg(v, to_centre)
+        b = next((i for i, (lo, hi) in enumerate(OFF_CENTRE_BINS_DEG) if lo <= off < hi), None)
+        if b is None:  # moving away from the centre: not a push
+            continue
+        pred = dynamics.rollout(state, actions).object_poses[0, -1].numpy()[:2] - start[k, :2]
+        true = end[k, :2] - start[k, :2]
+        cells.setdefault((obj.shape, b), []).append(
+            (_angle_deg(v, true), _angle_deg(v, pred), _angle_deg(pred, true),
+             float(np.linalg.norm(pred) / np.linalg.norm(true)))
+        )  # fmt: skip
+    rows = []
+    for (shape, b), vals in sorted(cells.items()):
+        a = np.median(np.array(vals), 0)
+        rows.append({
+            "shape": shape, "off_centre_deg": list(OFF_CENTRE_BINS_DEG[b]), "windows": len(vals),
+            "true_deflection_deg": float(a[0]), "predicted_deflection_deg": float(a[1]),
+            "direction_error_deg": float(a[2]), "length_ratio": float(a[3]),
+        })  # fmt: skip
+    return rows
 
 
 @torch.no_grad()

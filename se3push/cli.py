@@ -316,6 +316,38 @@ def _cmd_study(args: argparse.Namespace) -> int:
     return 0 if result["rows"] else 1
 
 
+def _cmd_deflection(args: argparse.Namespace) -> int:
+    from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK
+    from planner.study import parse_models, push_deflection, study_dynamics
+    from se3net.data import PushDataset
+    from sim.shards import atomic_write_json
+
+    scenario = PushDataset(args.data, split="test", horizon=1).scenario
+    lines = [
+        "| model | shape | off centre | windows | true deflection | predicted | "
+        "direction error | length pred/true |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    out = {}
+    for label, model in parse_models(args.models):
+        if model in ("oracle", "no-motion"):
+            raise InputError(f"--models: {model} has no deflection to measure; name checkpoints")
+        dynamics = study_dynamics(model, scenario, PLAN_FEEDBACK, CONTACT_MARGIN_M)
+        out[label] = rows = push_deflection(dynamics, args.data, max_windows=args.max_windows)
+        for r in rows:
+            lo, hi = r["off_centre_deg"]
+            lines.append(
+                f"| {label} | {r['shape']} | {lo}-{hi} deg | {r['windows']} | "
+                f"{r['true_deflection_deg']:.1f} deg | {r['predicted_deflection_deg']:.1f} deg | "
+                f"{r['direction_error_deg']:.1f} deg | {r['length_ratio']:.2f} |"
+            )
+    print("\n".join(lines))
+    if args.json:
+        atomic_write_json(Path(args.json), {"data": args.data, "models": out})
+        print(f"wrote {args.json}")
+    return 0
+
+
 def _cmd_improve(args: argparse.Namespace) -> int:
     from planner.improve import ImproveConfig, run_improve
 
@@ -505,6 +537,17 @@ def _parser() -> argparse.ArgumentParser:
     _shared_planning_options(s)
     s.add_argument("--out", required=True, help="folder for study.md/.json/.png and trials/")
     s.set_defaults(run=_cmd_study)
+
+    s = sub.add_parser(
+        "deflection", help="how far off-centre pushes turn the object, and how far a model says"
+    )
+    s.add_argument("--data", required=True, help="dataset whose test split gives the pushes")
+    s.add_argument("--models", nargs="+", required=True,
+                   help="default or checkpoint paths (LABEL=PATH names one)")  # fmt: skip
+    s.add_argument("--max-windows", type=int, default=2000,
+                   help="held-out one-step windows where the object moves, per model")  # fmt: skip
+    s.add_argument("--json", default=None, help="also write the rows to this JSON file")
+    s.set_defaults(run=_cmd_deflection)
 
     s = sub.add_parser("improve", help="rounds of planner-visited data and fine-tuning")
     _closed_loop_options(

@@ -1,6 +1,7 @@
 import json
 
 import pytest
+import torch
 
 from planner.study import (
     ACCURACY,
@@ -119,3 +120,46 @@ def test_study_end_to_end_on_tiny(study_data, tmp_path):
                                 | {"horizon_pos_err_cm": 99.0}))  # fmt: skip
     measured = run_study(cfg, tmp_path / "study")["rows"][-1]["horizon_pos_err_cm"]
     assert measured == pytest.approx(rows["late"]["horizon_pos_err_cm"])
+
+
+class _AlongThePush:
+    """A stand-in model that moves the object exactly as the pusher is commanded: no push
+    deflects it."""
+
+    name, differentiable = "toy", True
+
+    def __init__(self, dt):
+        self.dt = dt
+
+    def rollout(self, state, actions, *, clouds=False):
+        from planner.dynamics import Rollout, integrate_pusher
+
+        xy = state.object_pose[:2].to(actions) + self.dt * torch.cumsum(actions, 1)
+        yaw = state.object_pose[2].to(actions).expand(xy.shape[:2])
+        return Rollout(
+            torch.cat([xy, yaw[..., None]], -1), integrate_pusher(state, actions, self.dt)
+        )
+
+
+def test_push_deflection_of_a_model_that_moves_the_object_the_pusher_s_way(study_data):
+    """A model that moves the object along the pusher's commanded velocity predicts no
+    deflection, so its direction error is the true deflection, bin by bin; every window
+    counted was a push toward the object's side of the pusher."""
+    from planner.study import OFF_CENTRE_BINS_DEG, push_deflection
+    from scenarios import load_scenario
+
+    dt = load_scenario("tiny").action.dt_control_s
+    rows = push_deflection(_AlongThePush(dt), study_data)
+    assert rows and sum(r["windows"] for r in rows) >= 3
+    for r in rows:
+        assert tuple(r["off_centre_deg"]) in OFF_CENTRE_BINS_DEG and r["shape"] == "box"
+        assert r["predicted_deflection_deg"] < 0.1
+        assert abs(r["direction_error_deg"] - r["true_deflection_deg"]) < 0.1
+        assert r["true_deflection_deg"] > 0.1  # a real box turns away from any push a little
+
+
+def test_deflection_refuses_a_backend_without_a_model(study_data, capsys):
+    from se3push.cli import main
+
+    assert main(["deflection", "--data", str(study_data), "--models", "oracle"]) == 2
+    assert "oracle has no deflection to measure" in capsys.readouterr().err
