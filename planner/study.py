@@ -202,6 +202,10 @@ def horizon_pose_error(
     }
 
 
+STILL_M = 1e-4
+"""a predicted displacement shorter than this has no direction: ``push_deflection`` leaves
+it out of the angle medians (it counts such windows as ``predicted_still``)"""
+
 OFF_CENTRE_BINS_DEG = ((0, 15), (15, 30), (30, 45), (45, 90))
 """how far off the object's centre a push was aimed (deg), the bins of ``push_deflection``"""
 
@@ -228,8 +232,9 @@ def push_deflection(
     the contact normal, not the pusher's way. One row per object shape and off-centre bin
     (``OFF_CENTRE_BINS_DEG``): the windows, and the medians of the true and the predicted
     deflection (deg from the pusher's velocity), of the angle between the predicted and the
-    true displacement, and of their length ratio. ``dynamics``: a backend as the planner
-    rolls it (``make_dynamics``).
+    true displacement (over windows where the model predicts motion; None where it predicts
+    none), and of their length ratio. ``dynamics``: a backend as the planner rolls it
+    (``make_dynamics``).
     """
     from se3net.data import PushDataset
 
@@ -247,17 +252,24 @@ def push_deflection(
             continue
         pred = dynamics.rollout(state, actions).object_poses[0, -1].numpy()[:2] - start[k, :2]
         true = end[k, :2] - start[k, :2]
+        still = np.linalg.norm(pred) < STILL_M  # no predicted direction to measure
         cells.setdefault((obj.shape, b), []).append(
-            (_angle_deg(v, true), _angle_deg(v, pred), _angle_deg(pred, true),
+            (_angle_deg(v, true), np.nan if still else _angle_deg(v, pred),
+             np.nan if still else _angle_deg(pred, true),
              float(np.linalg.norm(pred) / np.linalg.norm(true)))
         )  # fmt: skip
     rows = []
     for (shape, b), vals in sorted(cells.items()):
-        a = np.median(np.array(vals), 0)
+        a = np.array(vals)
+        moved = a[np.isfinite(a[:, 1])]
+        pred_deg, err_deg = np.median(moved[:, 1:3], 0) if len(moved) else (None, None)
         rows.append({
             "shape": shape, "off_centre_deg": list(OFF_CENTRE_BINS_DEG[b]), "windows": len(vals),
-            "true_deflection_deg": float(a[0]), "predicted_deflection_deg": float(a[1]),
-            "direction_error_deg": float(a[2]), "length_ratio": float(a[3]),
+            "predicted_still": len(a) - len(moved),
+            "true_deflection_deg": float(np.median(a[:, 0])),
+            "predicted_deflection_deg": None if pred_deg is None else float(pred_deg),
+            "direction_error_deg": None if err_deg is None else float(err_deg),
+            "length_ratio": float(np.median(a[:, 3])),
         })  # fmt: skip
     return rows
 

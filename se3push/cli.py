@@ -322,9 +322,11 @@ def _cmd_deflection(args: argparse.Namespace) -> int:
     from se3net.data import PushDataset
     from sim.shards import atomic_write_json
 
+    if args.max_windows < 1:
+        raise InputError(f"--max-windows must be positive, got {args.max_windows}")
     scenario = PushDataset(args.data, split="test", horizon=1).scenario
     lines = [
-        "| model | shape | off centre | windows | true deflection | predicted | "
+        "| model | shape | off centre | windows (predicted still) | true deflection | predicted | "
         "direction error | length pred/true |",
         "|---|---|---|---|---|---|---|---|",
     ]
@@ -336,10 +338,14 @@ def _cmd_deflection(args: argparse.Namespace) -> int:
         out[label] = rows = push_deflection(dynamics, args.data, max_windows=args.max_windows)
         for r in rows:
             lo, hi = r["off_centre_deg"]
+            pred, err = (
+                "–" if x is None else f"{x:.1f} deg"
+                for x in (r["predicted_deflection_deg"], r["direction_error_deg"])
+            )
             lines.append(
-                f"| {label} | {r['shape']} | {lo}-{hi} deg | {r['windows']} | "
-                f"{r['true_deflection_deg']:.1f} deg | {r['predicted_deflection_deg']:.1f} deg | "
-                f"{r['direction_error_deg']:.1f} deg | {r['length_ratio']:.2f} |"
+                f"| {label} | {r['shape']} | {lo}-{hi} deg | {r['windows']} "
+                f"({r['predicted_still']}) | {r['true_deflection_deg']:.1f} deg | {pred} | "
+                f"{err} | {r['length_ratio']:.2f} |"
             )
     print("\n".join(lines))
     if args.json:

@@ -163,3 +163,19 @@ def test_deflection_refuses_a_backend_without_a_model(study_data, capsys):
 
     assert main(["deflection", "--data", str(study_data), "--models", "oracle"]) == 2
     assert "oracle has no deflection to measure" in capsys.readouterr().err
+
+
+def test_push_deflection_leaves_predicted_stillness_out_of_the_angles(study_data):
+    """A model that predicts no motion has no direction to compare: every window counts as
+    predicted still, the angles are None (not the 90 degrees a zero vector would give), and
+    the length ratio is about 0."""
+    from planner.dynamics import make_dynamics
+    from planner.study import push_deflection
+    from scenarios import load_scenario
+
+    rows = push_deflection(make_dynamics("no-motion", load_scenario("tiny")), study_data)
+    assert rows
+    for r in rows:
+        assert r["predicted_still"] == r["windows"]
+        assert r["predicted_deflection_deg"] is None and r["direction_error_deg"] is None
+        assert r["length_ratio"] < 1e-3
