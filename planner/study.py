@@ -218,29 +218,29 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
 
 @torch.no_grad()
 def push_deflection(
-    dynamics,
+    models: list,
     data: str | Path,
     *,
     object_index: int = 0,
     max_windows: int = 2000,
-) -> list[dict[str, Any]]:
-    """How far a push turns the object's motion away from the pusher's, and how far the model
-    says it does, over one-step held-out windows where the object moves.
+) -> list[list[dict[str, Any]]]:
+    """How far a push turns the object's motion away from the pusher's, and how far each model
+    says it does, over the same one-step held-out windows where the object moves (read once).
 
     A push aimed off the object's centre (the angle between the pusher's commanded velocity
     and the line from the pusher to the centre) deflects the object: a round one moves along
-    the contact normal, not the pusher's way. One row per object shape and off-centre bin
+    the contact normal, not the pusher's way. For each of ``models`` (backends as the planner
+    rolls them, ``make_dynamics``), one row per object shape and off-centre bin
     (``OFF_CENTRE_BINS_DEG``): the windows, and the medians of the true and the predicted
     deflection (deg from the pusher's velocity), of the angle between the predicted and the
     true displacement (over windows where the model predicts motion; None where it predicts
-    none), and of their length ratio. ``dynamics``: a backend as the planner rolls it
-    (``make_dynamics``).
+    none), and of their length ratio.
     """
     from se3net.data import PushDataset
 
     ds = PushDataset(data, split="test", horizon=1)
     pick, start, end = _moving_windows(ds, data, object_index, max_windows)
-    cells: dict[tuple[str, int], list[tuple[float, ...]]] = {}
+    cells: list[dict[tuple[str, int], list[tuple[float, ...]]]] = [{} for _ in models]
     for k, (state, actions, obj) in enumerate(_window_states(ds, pick, start, object_index)):
         v = actions[0, 0].numpy()
         to_centre = start[k, :2] - state.pusher_xy.numpy()
@@ -250,14 +250,20 @@ def push_deflection(
         b = next((i for i, (lo, hi) in enumerate(OFF_CENTRE_BINS_DEG) if lo <= off < hi), None)
         if b is None:  # moving away from the centre: not a push
             continue
-        pred = dynamics.rollout(state, actions).object_poses[0, -1].numpy()[:2] - start[k, :2]
         true = end[k, :2] - start[k, :2]
-        still = np.linalg.norm(pred) < STILL_M  # no predicted direction to measure
-        cells.setdefault((obj.shape, b), []).append(
-            (_angle_deg(v, true), np.nan if still else _angle_deg(v, pred),
-             np.nan if still else _angle_deg(pred, true),
-             float(np.linalg.norm(pred) / np.linalg.norm(true)))
-        )  # fmt: skip
+        for dynamics, mine in zip(models, cells, strict=True):
+            pred = dynamics.rollout(state, actions).object_poses[0, -1].numpy()[:2] - start[k, :2]
+            still = np.linalg.norm(pred) < STILL_M  # no predicted direction to measure
+            mine.setdefault((obj.shape, b), []).append(
+                (_angle_deg(v, true), np.nan if still else _angle_deg(v, pred),
+                 np.nan if still else _angle_deg(pred, true),
+                 float(np.linalg.norm(pred) / np.linalg.norm(true)))
+            )  # fmt: skip
+    return [_deflection_rows(mine) for mine in cells]
+
+
+def _deflection_rows(cells: dict[tuple[str, int], list[tuple[float, ...]]]) -> list[dict]:
+    """``push_deflection``'s rows of one model from its (shape, bin) cells of windows."""
     rows = []
     for (shape, b), vals in sorted(cells.items()):
         a = np.array(vals)

@@ -318,24 +318,25 @@ def _cmd_study(args: argparse.Namespace) -> int:
 
 def _cmd_deflection(args: argparse.Namespace) -> int:
     from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK
-    from planner.study import parse_models, push_deflection, study_dynamics
-    from se3net.data import PushDataset
+    from planner.study import BACKEND_MODELS, parse_models, push_deflection, study_dynamics
+    from sim.datastore import read_manifest, scenario_of
     from sim.shards import atomic_write_json
 
     if args.max_windows < 1:
         raise InputError(f"--max-windows must be positive, got {args.max_windows}")
-    scenario = PushDataset(args.data, split="test", horizon=1).scenario
+    models = parse_models(args.models)
+    for _, model in models:
+        if model in BACKEND_MODELS:
+            raise InputError(f"--models: {model} has no deflection to measure; name checkpoints")
+    scenario = scenario_of(read_manifest(args.data))
+    dynamics = [study_dynamics(m, scenario, PLAN_FEEDBACK, CONTACT_MARGIN_M) for _, m in models]
+    tables = push_deflection(dynamics, args.data, max_windows=args.max_windows)
     lines = [
         "| model | shape | off centre | windows (predicted still) | true deflection | predicted | "
         "direction error | length pred/true |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    out = {}
-    for label, model in parse_models(args.models):
-        if model in ("oracle", "no-motion"):
-            raise InputError(f"--models: {model} has no deflection to measure; name checkpoints")
-        dynamics = study_dynamics(model, scenario, PLAN_FEEDBACK, CONTACT_MARGIN_M)
-        out[label] = rows = push_deflection(dynamics, args.data, max_windows=args.max_windows)
+    for (label, _), rows in zip(models, tables, strict=True):
         for r in rows:
             lo, hi = r["off_centre_deg"]
             pred, err = (
@@ -349,6 +350,7 @@ def _cmd_deflection(args: argparse.Namespace) -> int:
             )
     print("\n".join(lines))
     if args.json:
+        out = {label: rows for (label, _), rows in zip(models, tables, strict=True)}
         atomic_write_json(Path(args.json), {"data": args.data, "models": out})
         print(f"wrote {args.json}")
     return 0

@@ -149,7 +149,7 @@ def test_push_deflection_of_a_model_that_moves_the_object_the_pusher_s_way(study
     from scenarios import load_scenario
 
     dt = load_scenario("tiny").action.dt_control_s
-    rows = push_deflection(_AlongThePush(dt), study_data)
+    (rows,) = push_deflection([_AlongThePush(dt)], study_data)
     assert rows and sum(r["windows"] for r in rows) >= 3
     for r in rows:
         assert tuple(r["off_centre_deg"]) in OFF_CENTRE_BINS_DEG and r["shape"] == "box"
@@ -173,7 +173,7 @@ def test_push_deflection_leaves_predicted_stillness_out_of_the_angles(study_data
     from planner.study import push_deflection
     from scenarios import load_scenario
 
-    rows = push_deflection(make_dynamics("no-motion", load_scenario("tiny")), study_data)
+    (rows,) = push_deflection([make_dynamics("no-motion", load_scenario("tiny"))], study_data)
     assert rows
     for r in rows:
         assert r["predicted_still"] == r["windows"]
