@@ -163,6 +163,9 @@ def test_deflection_refuses_a_backend_without_a_model(study_data, capsys):
 
     assert main(["deflection", "--data", str(study_data), "--models", "oracle"]) == 2
     assert "oracle has no deflection to measure" in capsys.readouterr().err
+    assert main(["deflection", "--data", str(study_data), "--models", "default",
+                 "--max-windows", "0"]) == 2  # fmt: skip
+    assert "--max-windows must be positive, got 0" in capsys.readouterr().err
 
 
 def test_push_deflection_leaves_predicted_stillness_out_of_the_angles(study_data):
