@@ -42,6 +42,7 @@ from gymnasium import spaces
 
 from planner.base import PlannerConfig
 from planner.cost import CostConfig
+from planner.dynamics import PLAN_MOTION_GAIN, CalibratedDynamics
 from planner.loop import TIGHT, PushConfig, check_reachable, push_planner, push_scenario, within
 from planner.observe import plan_state
 from planner.trials import draw_trial
@@ -147,22 +148,27 @@ class PushEnv(gymnasium.Env):
 class MPCPolicy:
     """The MPC planner of ``plan-push`` as a policy of a :class:`PushEnv`: a planner built
     for each episode exactly as the closed loop builds it (``planner.loop.push_planner``,
-    seeded with the world's seed), fed the planner's view of the environment's world.
+    seeded with the world's seed), fed the planner's view of the environment's world. As in
+    the loop, a learned model's motion gain (if asked for) is fitted to each executed step: the
+    policy takes the step from one call to the next to be the action it returned.
 
     Args:
         env: the environment (or a wrapper of it, such as ``gymnasium.make`` returns).
         model: dynamics, as ``plan-push --model`` (default, a checkpoint, oracle, ...).
         planner: cem, mppi, grad or sqp.
+        motion_gain: scale a learned model's predicted motion by a gain fitted online
+            (``PushConfig.motion_gain``).
     """
 
     def __init__(self, env: gymnasium.Env, *, model: str = "default", planner: str = "cem",
                  planning: PlannerConfig | None = None, cost: CostConfig | None = None,
-                 device: str = "cpu") -> None:  # fmt: skip
+                 device: str = "cpu", motion_gain: bool = PLAN_MOTION_GAIN) -> None:  # fmt: skip
         planning, cost = planning or PlannerConfig(), cost or CostConfig()
         self.env: PushEnv = env.unwrapped
         self.options = {"model": model, "planner": planner, "planning": planning, "cost": cost,
-                        "device": device}  # fmt: skip
+                        "device": device, "motion_gain": motion_gain}  # fmt: skip
         self.planner, self.episode = None, -1
+        self.last = None  # the object's pose when the last plan was made, and its prediction
 
     def __call__(self, observation: dict[str, np.ndarray]) -> np.ndarray:
         """The planned action for the environment's current state (``observation`` is that
@@ -173,7 +179,14 @@ class MPCPolicy:
                              seed=env.world_seed, max_steps=env.max_steps,
                              **self.options)  # fmt: skip
             self.planner, self.episode = push_planner(cfg, env.scenario, env.world), env.episode
-        action, _ = self.planner.plan(plan_state(env.obs, env.world))
+            self.last = None
+        pose = env.obs.object_poses[0]
+        dynamics = self.planner.dynamics
+        if isinstance(dynamics, CalibratedDynamics) and self.last is not None:
+            before, predicted = self.last  # what the last action did, beside what was predicted
+            dynamics.observe(before, predicted, pose, env.world.objects[0].footprint_radius_m)
+        action, info = self.planner.plan(plan_state(env.obs, env.world))
+        self.last = pose.copy(), info.predicted_poses[0]
         return action
 
 

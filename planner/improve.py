@@ -33,6 +33,7 @@ from planner.cost import COST_BEFORE_OPTIONS, CostConfig
 from planner.dynamics import (
     CONTACT_MARGIN_M,
     PLAN_FEEDBACK,
+    PLAN_MOTION_GAIN,
     ROLLOUT_BEFORE_OPTIONS,
     check_planner_rollout,
 )
@@ -94,6 +95,8 @@ class ImproveConfig:
     """how the planner feeds a learned model's predictions back (``se3net.rollout.FEEDBACK``)"""
     contact_margin_m: float | None = CONTACT_MARGIN_M
     """the planner's contact gate (``planner.dynamics.contact_gate``; None: off)"""
+    motion_gain: bool = PLAN_MOTION_GAIN
+    """the planner's online motion gain (``planner.dynamics.CalibratedDynamics``)"""
     shaping_fade: str = CostConfig.shaping_fade
     """where predicted motion fades the cost's shaping term (``CostConfig.shaping_fade``)"""
 
@@ -150,7 +153,7 @@ def record_trial(
         goal=tuple(trial["goal"]), scenario=scenario, model=model, planner=cfg.planner,
         seed=trial["reset_seed"], max_steps=cfg.max_steps, action_noise=cfg.action_noise,
         feedback=cfg.feedback, contact_margin_m=cfg.contact_margin_m,
-        cost=CostConfig(shaping_fade=cfg.shaping_fade),
+        motion_gain=cfg.motion_gain, cost=CostConfig(shaping_fade=cfg.shaping_fade),
     )  # fmt: skip
     result = run_push(push, on_transition=on_transition)
     if current["rec"].length > 0:
@@ -299,7 +302,7 @@ def run_improve(
             tcfg = TrialsConfig(
                 scenario=scenario, n=cfg.heldout, model=model, planner=cfg.planner,
                 seed=cfg.seed, max_steps=cfg.max_steps, feedback=cfg.feedback,
-                contact_margin_m=cfg.contact_margin_m,
+                contact_margin_m=cfg.contact_margin_m, motion_gain=cfg.motion_gain,
                 cost=CostConfig(shaping_fade=cfg.shaping_fade),
             )  # fmt: skip
             summary = run_trials(tcfg, out / f"round_{r}" / "heldout" / name, workers=workers,

@@ -14,7 +14,13 @@ import torch
 from planner import Planner, PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
 from planner.cost import CostConfig
 from planner.diagnostics import STEP_FIGURES, exploitation, step_figures
-from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK, check_planner_rollout
+from planner.dynamics import (
+    CONTACT_MARGIN_M,
+    PLAN_FEEDBACK,
+    PLAN_MOTION_GAIN,
+    CalibratedDynamics,
+    check_planner_rollout,
+)
 from planner.viz import MeshcatVisualiser, NullVisualiser
 from scenarios import InputError, Scenario, load_scenario
 from se3net.device import check_device
@@ -62,6 +68,9 @@ class PushConfig:
     contact_margin_m: float | None = CONTACT_MARGIN_M
     """a learned model's predicted motion of an object counts only where something passes
     within this margin of touching it (``planner.dynamics.contact_gate``; None: all counts)"""
+    motion_gain: bool = PLAN_MOTION_GAIN
+    """a learned model's predicted motion of the pushed object is scaled by a gain fitted to
+    the push's executed steps (``planner.dynamics.CalibratedDynamics``)"""
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.action_noise <= 1.0:
@@ -115,6 +124,9 @@ class PushResult:
     """the pushed object's shape, size, mass and friction (``sim.shapes.ObjectSpec``)"""
     diagnostics: dict = field(default_factory=dict)
     """exploitation diagnostics over the executed steps (``planner.diagnostics``)"""
+    motion_gain: float | None = None
+    """the gain a learned model's predicted motion was scaled by at the end
+    (``PushConfig.motion_gain``; None: not scaled)"""
     records: list[StepRecord] = field(default_factory=list)
 
     def summary(self) -> dict:
@@ -167,6 +179,8 @@ def push_planner(cfg: PushConfig, scenario: Scenario, world: PushWorld) -> Plann
             feedback=cfg.feedback,
             contact_margin_m=cfg.contact_margin_m,
         )
+        if cfg.motion_gain:
+            dynamics = CalibratedDynamics(dynamics)
     return make_planner(
         cfg.planner,
         dynamics,
@@ -215,6 +229,8 @@ def run_push(
             f"{cfg.seed} has {len(world.objects)} object(s) (indices 0..{len(world.objects) - 1})"
         )
     planner = push_planner(cfg, scenario, world)
+    calibrated = planner.dynamics if isinstance(planner.dynamics, CalibratedDynamics) else None
+    radius = world.objects[cfg.object_index].footprint_radius_m
     goal = np.array(cfg.goal, dtype=float)
     period = world.objects[cfg.object_index].yaw_period_rad
     others = [j for j in range(len(world.objects)) if j != cfg.object_index]
@@ -249,6 +265,8 @@ def run_push(
                 on_transition(world, obs, action)
             viz.step(obs, info)
             pose = obs.object_poses[cfg.object_index]
+            if calibrated is not None:
+                calibrated.observe(before, info.predicted_poses[0], pose, radius)
             figures = step_figures(before, info.predicted_poses[0], pose, goal)
             rec = StepRecord(step + 1, action.tolist(), pose.tolist(), *errors(), info.wall_ms,
                              info.predicted_poses.tolist(), **figures)  # fmt: skip
@@ -276,5 +294,6 @@ def run_push(
         others_moved_m=disturbance(others_start, obs.object_poses[others, :2]),
         pushed_object=asdict(world.objects[cfg.object_index]),
         diagnostics=exploitation([asdict(r) for r in records]),
+        motion_gain=None if calibrated is None else calibrated.gain,
         records=records,
     )

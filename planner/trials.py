@@ -26,6 +26,7 @@ from planner.diagnostics import pooled
 from planner.dynamics import (
     CONTACT_MARGIN_M,
     PLAN_FEEDBACK,
+    PLAN_MOTION_GAIN,
     ROLLOUT_BEFORE_OPTIONS,
     check_planner_rollout,
 )
@@ -64,6 +65,8 @@ class TrialsConfig:
     contact_margin_m: float | None = CONTACT_MARGIN_M
     """within what margin of touch a learned model's predicted motions count
     (``planner.dynamics.contact_gate``; None: all of them)"""
+    motion_gain: bool = PLAN_MOTION_GAIN
+    """a learned model's predicted motion scaled by a gain fitted online (``PushConfig``)"""
 
     def __post_init__(self) -> None:
         if self.n < 1 or self.max_steps < 1:
@@ -117,6 +120,7 @@ def run_trial(cfg: TrialsConfig, i: int) -> dict[str, Any]:
         cost=cfg.cost,
         feedback=cfg.feedback,
         contact_margin_m=cfg.contact_margin_m,
+        motion_gain=cfg.motion_gain,
     )
     result = run_push(push)
     path = [trial["start"][:2]] + [r.object_pose[:2] for r in result.records]
@@ -148,6 +152,8 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     out["median_others_moved_m"] = float(np.median(moved)) if moved else None
     out["others_moved_over_1cm"] = float(np.mean(np.array(moved) > 0.01)) if moved else None
     out["diagnostics"] = pooled(r["diagnostics"] for r in records)
+    gains = [r["motion_gain"] for r in records if r.get("motion_gain") is not None]
+    out["median_motion_gain"] = float(np.median(gains)) if gains else None
     # where generalisation stops: successes by the pushed object's shape and mass
     pushed = [r for r in records if "pushed_object" in r]
     out["by_shape"] = tally(pushed, lambda o: o["shape"])
@@ -168,14 +174,21 @@ def mass_bin(obj: dict[str, Any]) -> str:
 
 def tally(
     records: list[dict[str, Any]], key: Callable[[dict[str, Any]], str]
-) -> dict[str, dict[str, int]]:
-    """Tight and loose successes and trials per ``key(pushed_object)``, in sorted key order."""
-    rows: dict[str, dict[str, int]] = {}
+) -> dict[str, dict[str, Any]]:
+    """Tight and loose successes and trials per ``key(pushed_object)``, in sorted key order,
+    and the median final motion gain where the trials fitted one (``PushResult.motion_gain``)."""
+    rows: dict[str, dict[str, Any]] = {}
+    gains: dict[str, list[float]] = {}
     for r in records:
-        row = rows.setdefault(key(r["pushed_object"]), {"tight": 0, "loose": 0, "trials": 0})
+        k = key(r["pushed_object"])
+        row = rows.setdefault(k, {"tight": 0, "loose": 0, "trials": 0})
         row["tight"] += int(r["success_tight"])
         row["loose"] += int(r["success_loose"])
         row["trials"] += 1
+        if r.get("motion_gain") is not None:
+            gains.setdefault(k, []).append(r["motion_gain"])
+    for k, g in gains.items():
+        rows[k]["median_motion_gain"] = float(np.median(g))
     return dict(sorted(rows.items()))
 
 
@@ -249,7 +262,8 @@ def _compared(meta: dict) -> dict:
     read; cost settings added later count as the older runs had them
     (``COST_BEFORE_OPTIONS``), and the disturbance weight not at all where the pushed object is
     always alone; runs from before ``feedback`` fed predicted clouds back on the grid and those
-    from before the contact gate had none, and the simulator backends have neither."""
+    from before the contact gate had none, those from before the motion gain no gain, and the
+    simulator backends have none of them."""
     out = {k: v for k, v in meta.items() if k != "n"}
     out |= {k: meta.get(k, before) for k, before in ROLLOUT_BEFORE_OPTIONS.items()}
     if meta.get("model") in ("oracle", "no-motion"):

@@ -133,6 +133,11 @@ def _cmd_trials(args: argparse.Namespace) -> int:
         f"  median replan           {s['median_replan_ms_median']:.0f} ms\n"
         f"  model exploitation      {_diagnostics_line(s)}\n"
         + (
+            f"  motion gain             {s['median_motion_gain']:.2f} (median at the end)\n"
+            if s.get("median_motion_gain") is not None
+            else ""
+        )
+        + (
             f"  other objects moved     {summary_cells(s)['disturbance']} (median of the "
             f"largest displacement, {s['trials_among_others']} trials among others)\n"
             if s["trials_among_others"]
@@ -141,7 +146,7 @@ def _cmd_trials(args: argparse.Namespace) -> int:
         + (
             "  by pushed object        "
             + ", ".join(
-                f"{k} {v['tight']}/{v['trials']} ({v['loose']} loose)"
+                f"{k} {v['tight']}/{v['trials']} ({v['loose']} loose{_gain(v)})"
                 for k, v in s["by_shape"].items()
             )  # fmt: skip
             + "\n"
@@ -158,6 +163,12 @@ def _cmd_trials(args: argparse.Namespace) -> int:
         + f"wrote {args.out}/trials.jsonl, summary.json, paths.png"
     )
     return 0
+
+
+def _gain(row: dict) -> str:
+    """A by-shape row's median motion gain, for the trials summary (empty without one)."""
+    gain = row.get("median_motion_gain")
+    return "" if gain is None else f", gain {gain:.2f}"
 
 
 def _diagnostics_line(s: dict) -> str:
@@ -236,12 +247,16 @@ def _contact_margin(text: str) -> float | None:
         ) from None
 
 
+MOTION_GAINS = ("online", "off")
+"""``--motion-gain``'s choices: the gain fitted online, or none"""
+
+
 def _shared_planning_options(s: argparse.ArgumentParser) -> None:
     """The planner's settings that study and improve share with trials and plan-push:
     ``--shaping-fade`` (a cost setting), and how the planner rolls a learned model,
-    ``--feedback`` and ``--contact-margin``."""
+    ``--feedback``, ``--contact-margin`` and ``--motion-gain``."""
     from planner.cost import SHAPING_FADES, CostConfig
-    from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK
+    from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK, PLAN_MOTION_GAIN
 
     s.add_argument(
         "--shaping-fade", choices=SHAPING_FADES, default=CostConfig.shaping_fade,
@@ -257,6 +272,12 @@ def _shared_planning_options(s: argparse.ArgumentParser) -> None:
         help="a learned model's predicted motion of an object counts only at steps where the "
         "pusher (or, for another object, the pushed one) passes within M metres of touching "
         f"it (default {CONTACT_MARGIN_M}; off: every predicted motion counts)",
+    )  # fmt: skip
+    s.add_argument(
+        "--motion-gain", choices=MOTION_GAINS, default=MOTION_GAINS[not PLAN_MOTION_GAIN],
+        help="online: scale a learned model's predicted motion of the pushed object by a gain "
+        "fitted to how far the executed steps moved it (off: the model's own motion; default "
+        f"{MOTION_GAINS[not PLAN_MOTION_GAIN]})",
     )  # fmt: skip
 
 
@@ -289,7 +310,7 @@ def _planning_options(s: argparse.ArgumentParser) -> None:
 
 
 def _planning_configs(args: argparse.Namespace) -> dict:
-    """``planning``, ``cost``, ``feedback`` and ``contact_margin_m`` settings from
+    """``planning``, ``cost``, ``feedback``, ``contact_margin_m`` and ``motion_gain`` settings from
     :func:`_planning_options`' flags."""
     from planner.base import PlannerConfig
     from planner.cost import CostConfig
@@ -299,7 +320,8 @@ def _planning_configs(args: argparse.Namespace) -> dict:
     cost = CostConfig(w_spread=args.spread_weight, w_disturb=args.disturb_weight,
                       shaping_fade=args.shaping_fade)  # fmt: skip
     return {"planning": planning, "cost": cost, "feedback": args.feedback,
-            "contact_margin_m": args.contact_margin}  # fmt: skip
+            "contact_margin_m": args.contact_margin,
+            "motion_gain": args.motion_gain == "online"}  # fmt: skip
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
@@ -309,6 +331,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
                       trials=args.trials, seed=args.seed, planner=args.planner,
                       max_steps=args.max_steps, max_examples=args.max_examples,
                       feedback=args.feedback, contact_margin_m=args.contact_margin,
+                      motion_gain=args.motion_gain == "online",
                       shaping_fade=args.shaping_fade)  # fmt: skip
     result = run_study(cfg, args.out, workers=args.workers)
     print((Path(args.out) / "study.md").read_text())
@@ -367,7 +390,7 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         rollout_steps=args.rollout_steps, lr=args.lr, planner=args.planner,
         max_steps=args.max_steps, visited_fraction=args.visited_fraction,
         feedback=args.feedback, contact_margin_m=args.contact_margin,
-        shaping_fade=args.shaping_fade,
+        motion_gain=args.motion_gain == "online", shaping_fade=args.shaping_fade,
     )  # fmt: skip
     run_improve(cfg, args.out, workers=args.workers, **_backend(args))
     print((Path(args.out) / "improve.md").read_text())
@@ -718,6 +741,8 @@ def _cmd_plan_push(args: argparse.Namespace) -> int:
         )
         if result.others_moved_m is not None:
             print(f"the other objects moved at most {result.others_moved_m * 100:.1f} cm")
+        if result.motion_gain is not None:
+            print(f"the model's predicted motion was scaled by {result.motion_gain:.2f} at the end")
     return 0 if result.success_tight else 1
 
 

@@ -7,6 +7,8 @@ import torch
 
 from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
 from planner.dynamics import (
+    MOTION_GAIN_RANGE,
+    CalibratedDynamics,
     EnsembleDynamics,
     LearnedDynamics,
     NoMotionDynamics,
@@ -338,3 +340,55 @@ def test_the_contact_gate_keeps_the_shipped_model_s_push_and_drops_its_motion_fr
     past = box - 0.06 * d + 0.10 * np.array([-d[1], d[0]])
     assert moved(past, None) > 5e-5
     assert moved(past, 0.01) < 1e-7
+
+
+def test_a_motion_gain_scales_the_pushed_object_s_predicted_change_and_nothing_else():
+    """With gain 2 the carried disk is predicted to move twice as far (and turn twice as far,
+    from a start yaw that is not 0); the pusher is where it was."""
+    turning = _Carried((0.5, 0.5))
+    state = dataclasses.replace(toy_state(), object_pose=torch.tensor([0.0, 0.0, 3.0]))
+    U = 0.1 * torch.randn(5, 4, 2, generator=torch.Generator().manual_seed(1))
+    model = turning.rollout(state, U)
+    model = dataclasses.replace(model, object_poses=model.object_poses
+                                + torch.tensor([0.0, 0.0, 0.1]))  # fmt: skip
+
+    class Turning:
+        name, differentiable = "toy", True
+
+        def rollout(self, state, actions, *, clouds=False):
+            return model
+
+    calibrated = CalibratedDynamics(Turning())
+    assert calibrated.rollout(state, U) is model  # gain 1: the model's own
+    calibrated.gain = 2.0
+    r = calibrated.rollout(state, U)
+    torch.testing.assert_close(r.object_poses[..., :2], 2 * model.object_poses[..., :2])
+    torch.testing.assert_close(r.object_poses[..., 2], torch.full((5, 4), 3.2))
+    torch.testing.assert_close(r.pusher_xy, model.pusher_xy)
+
+
+def _observed(calibrated, ratio, steps, size_m=0.01, turn=0.0):
+    """Feed ``steps`` executed steps of a model that predicts ``size_m`` along x where the
+    object moves ``ratio`` times as far (and turns ``turn`` rad where none is predicted)."""
+    pose = np.array([0.1, -0.05, 3.1])
+    for _ in range(steps):
+        predicted = pose + calibrated.gain * np.array([size_m, 0.0, 0.0])
+        after = pose + np.array([ratio * size_m, 0.0, turn])
+        calibrated.observe(pose, predicted, after, radius_m=0.05)
+        pose = after
+    return calibrated.gain
+
+
+def test_the_motion_gain_is_fitted_to_what_the_executed_steps_did():
+    """The gain tends to the ratio of actual to predicted motion as steps accumulate, shrunk
+    toward 1 by its prior, and keeps within its range; a step predicted to be tiny hardly
+    moves it; motion the model had in another direction does not count as motion it missed."""
+    new = lambda: CalibratedDynamics(_Carried((1.0, 1.0)))  # noqa: E731
+    assert _observed(new(), 1.0, 10) == pytest.approx(1.0)
+    few, many = _observed(new(), 3.0, 2), _observed(new(), 3.0, 20)
+    assert 1.5 < few < many < 3.0 and many > 2.9
+    assert _observed(new(), 10.0, 30) == MOTION_GAIN_RANGE[1]
+    assert _observed(new(), 0.0, 30) == MOTION_GAIN_RANGE[0]  # phantom pushes
+    assert _observed(new(), 10.0, 1, size_m=0.0005) < 1.1
+    turned = _observed(new(), 1.0, 20, turn=0.2)  # a turn nobody predicted: not more motion
+    assert turned == pytest.approx(1.0)

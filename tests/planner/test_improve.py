@@ -180,24 +180,24 @@ def test_the_same_scenario_twice_is_refused_before_anything_is_written(
 def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(
     tiny_data, start_model, tmp_path
 ):
-    """An improve folder written before ``feedback``, ``contact_margin_m`` and
-    ``shaping_fade`` existed planned on the grid with no gate, the shaping faded everywhere:
-    it is refused with today's defaults, and continues with those."""
+    """An improve folder written before ``feedback``, ``contact_margin_m``, ``shaping_fade``
+    and ``motion_gain`` existed planned on the grid with no gate and no gain, the shaping faded
+    everywhere: it is refused with today's defaults, and continues with those."""
     cfg = _cfg(tiny_data, start_model)
-    meta = {k: v for k, v in dataclasses.asdict(cfg).items()
-            if k not in ("feedback", "contact_margin_m", "shaping_fade")}  # fmt: skip
+    later = ("feedback", "contact_margin_m", "shaping_fade", "motion_gain")
+    meta = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in later}
     (tmp_path / "imp").mkdir()
     (tmp_path / "imp" / "config.json").write_text(json.dumps(meta))
     with pytest.raises(ValueError, match="feedback: folder has 'grid'"):
         run_improve(cfg, tmp_path / "imp")
-    before = dataclasses.replace(cfg, feedback="grid", contact_margin_m=None)
+    before = dataclasses.replace(cfg, feedback="grid", contact_margin_m=None, motion_gain=False)
     with pytest.raises(ValueError, match="shaping_fade: folder has 'everywhere'"):
         run_improve(before, tmp_path / "imp")
     before = dataclasses.replace(before, shaping_fade="everywhere")
     assert run_improve(before, tmp_path / "imp")["rounds"]
     trials = json.loads((tmp_path / "imp" / "round_0" / "heldout" / "tiny" / "config.json")
                         .read_text())  # fmt: skip
-    assert trials["cost"]["shaping_fade"] == "everywhere"
+    assert trials["cost"]["shaping_fade"] == "everywhere" and trials["motion_gain"] is False
 
 
 def test_finetuning_keeps_the_starting_network_and_its_loss(tiny_data, tmp_path):

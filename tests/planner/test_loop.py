@@ -1,5 +1,6 @@
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -149,3 +150,55 @@ def test_results_report_how_far_the_other_objects_were_moved():
                                 model="no-motion", max_steps=2))  # fmt: skip
     assert alone.others_moved_m is None and among.others_moved_m is not None
     assert "others_moved_m" in among.summary()
+
+
+class _HalfOracle:
+    """The simulator predicting half of every motion of the pushed object: a model that
+    under-predicts by a known factor."""
+
+    def __init__(self, world):
+        from planner.dynamics import OracleDynamics
+
+        self.oracle = OracleDynamics(world)
+        self.name, self.differentiable = "half", False
+
+    def rollout(self, state, actions, *, clouds=False):
+        out = self.oracle.rollout(state, actions)
+        start = state.object_pose.to(out.object_poses)
+        return replace(out, object_poses=start + 0.5 * (out.object_poses - start))
+
+
+def _half_oracle_push(monkeypatch, motion_gain):
+    """A push on the tiny scenario whose 'learned' model is :class:`_HalfOracle`."""
+    import planner.loop as loop
+
+    worlds = []
+
+    class Kept(PushWorld):
+        def __init__(self, scenario):
+            super().__init__(scenario)
+            worlds.append(self)
+
+    monkeypatch.setattr(loop, "PushWorld", Kept)
+    monkeypatch.setattr(loop, "make_dynamics", lambda *a, **k: _HalfOracle(worlds[-1]))
+    cfg = PushConfig(goal=_nearby_goal(-0.08), scenario="tiny", model="default", max_steps=30,
+                     planning=PlannerConfig(samples=12, iterations=2),
+                     motion_gain=motion_gain)  # fmt: skip
+    return run_push(cfg)
+
+
+def test_the_loop_fits_the_motion_gain_to_a_model_that_predicts_half_the_motion(monkeypatch):
+    """The executed steps teach the loop's gain that the model predicts half of each motion:
+    it ends near 2, and the steps planned with it predict the motion that then happens (the
+    model alone predicts half of it)."""
+    fitted = _half_oracle_push(monkeypatch, True)
+    alone = _half_oracle_push(monkeypatch, False)
+    assert alone.motion_gain is None and 1.7 < fitted.motion_gain < 2.05
+
+    def ratio(result):  # predicted over actual motion, over the steps that moved the object
+        moved = [r for r in result.records if r.actual_disp_m > 0.003][2:]  # the gain fitted
+        assert len(moved) >= 3
+        return sum(r.predicted_disp_m for r in moved) / sum(r.actual_disp_m for r in moved)
+
+    assert ratio(alone) == pytest.approx(0.5, abs=0.05)
+    assert ratio(fitted) == pytest.approx(1.0, abs=0.15)

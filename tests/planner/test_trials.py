@@ -244,6 +244,11 @@ def test_summaries_count_successes_by_the_pushed_objects_shape_and_mass():
     assert s["by_mass"] == {"0.3-0.4 kg": {"tight": 0, "loose": 0, "trials": 1},
                             "0.5-0.6 kg": {"tight": 2, "loose": 2, "trials": 2},
                             "0.7-0.8 kg": {"tight": 0, "loose": 1, "trials": 1}}  # fmt: skip
+    assert s["median_motion_gain"] is None
+    fitted = [{**rec("box", 0.3, True, True), "motion_gain": g} for g in (1.0, 2.0, 4.0)]
+    s = summarize(fitted + [{**rec("T", 0.3, True, True), "motion_gain": None}])
+    assert s["by_shape"]["box"]["median_motion_gain"] == 2.0 and s["median_motion_gain"] == 2.0
+    assert "median_motion_gain" not in s["by_shape"]["T"]
 
 
 @pytest.mark.scale
@@ -286,6 +291,27 @@ def test_the_contact_margin_makes_other_trials_of_a_learned_model_only(tmp_path)
                       progress=False)["trials"] == 2  # fmt: skip
     with pytest.raises(InputError, match="--contact-margin must be a distance >= 0"):
         replace(cfg, contact_margin_m=-0.01)
+
+
+def test_a_folder_from_before_the_motion_gain_continues_only_without_it(tmp_path):
+    """Records from before ``--motion-gain`` planned with the model's own motion: such a folder
+    is refused with the gain and extends without it; the simulator backends ignore it, and
+    the setting is in the folder's config and on the command line."""
+    cfg = TrialsConfig("single_box", n=1, model="default", max_steps=1, motion_gain=False)
+    run_trials(cfg, tmp_path / "old", progress=False)
+    meta = json.loads((tmp_path / "old" / "config.json").read_text())
+    assert meta.pop("motion_gain") is False
+    (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="motion_gain: folder has False, this run asks for True"):
+        run_trials(replace(cfg, n=2, motion_gain=True), tmp_path / "old", progress=False)
+    assert run_trials(replace(cfg, n=2), tmp_path / "old", progress=False)["trials"] == 2
+    still = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1)
+    run_trials(still, tmp_path / "still", progress=False)
+    assert run_trials(replace(still, n=2, motion_gain=False), tmp_path / "still",
+                      progress=False)["trials"] == 2  # fmt: skip
+    assert main(["trials", "--scenario", "tiny", "--n", "1", "--model", "no-motion",
+                 "--motion-gain", "off", "--out", str(tmp_path / "cli")]) == 0  # fmt: skip
+    assert json.loads((tmp_path / "cli" / "config.json").read_text())["motion_gain"] is False
 
 
 def test_a_folder_from_before_the_shaping_fade_continues_only_as_everywhere(tmp_path):
