@@ -120,10 +120,10 @@ def parse_models(models: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:
     return out
 
 
-def _moving_windows(ds, data, object_index: int, max_windows: int):
-    """Up to ``max_windows`` evenly spaced held-out windows of ``ds`` (a ``PushDataset``) where
-    the object moves more than ``HORIZON_MOVED_M``: their indices, and the object's recorded
-    poses at their two ends ((n,3) each)."""
+def _moving_windows(ds, data, object_index: int, max_windows: int, split: str = "test"):
+    """Up to ``max_windows`` evenly spaced windows of ``ds`` (a ``PushDataset`` of ``data``'s
+    ``split``) where the object moves more than ``HORIZON_MOVED_M``: their indices, and the
+    object's recorded poses at their two ends ((n,3) each)."""
     from se3net.data import evenly_spaced
 
     e, t = ds.items[:, 0], ds.items[:, 1]
@@ -131,8 +131,10 @@ def _moving_windows(ds, data, object_index: int, max_windows: int):
     start, end = poses[e, t], poses[e, t + ds.horizon]
     moving = np.flatnonzero(np.hypot(*(end - start)[:, :2].T) > HORIZON_MOVED_M)
     if len(moving) == 0:
-        raise InputError(f"the test split of {data} has no window where object {object_index} "
-                         f"moves over {ds.horizon} steps; generate more data")  # fmt: skip
+        raise InputError(
+            f"the {split} split of {data} has no window where object {object_index} moves "
+            f"over {ds.horizon} steps; generate more data"
+        )
     pick = moving[evenly_spaced(len(moving), max_windows)]
     return pick, start[pick], end[pick]
 
@@ -226,9 +228,11 @@ def push_deflection(
     *,
     object_index: int = 0,
     max_windows: int = 2000,
+    split: str = "test",
 ) -> list[list[dict[str, Any]]]:
     """How far a push turns the object's motion away from the pusher's, and how far each model
-    says it does, over the same one-step held-out windows where the object moves (read once).
+    says it does, over the same one-step held-out windows where the object moves (read once;
+    ``split``: the data's test split, or ``all`` of a dataset held out as a whole).
 
     A push aimed off the object's centre (the angle between the pusher's commanded velocity
     and the line from the pusher to the centre) deflects the object: a round one moves along
@@ -241,8 +245,8 @@ def push_deflection(
     """
     from se3net.data import PushDataset
 
-    ds = PushDataset(data, split="test", horizon=1)
-    pick, start, end = _moving_windows(ds, data, object_index, max_windows)
+    ds = PushDataset(data, split=split, horizon=1)
+    pick, start, end = _moving_windows(ds, data, object_index, max_windows, split)
     cells: list[dict[tuple[str, int], list[tuple[float, ...]]]] = [{} for _ in models]
     for k, (state, actions, obj) in enumerate(_window_states(ds, pick, start, object_index)):
         v = actions[0, 0].numpy()

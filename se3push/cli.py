@@ -247,6 +247,14 @@ def _contact_margin(text: str) -> float | None:
         ) from None
 
 
+def _split_option(s: argparse.ArgumentParser) -> None:
+    """``--split``: the episodes of a dataset that a measurement reads."""
+    s.add_argument(
+        "--split", choices=["test", "all"], default="test",
+        help="the dataset's episodes to use: its test split, or all (a held-out dataset)",
+    )  # fmt: skip
+
+
 MOTION_GAINS = ("online", "off")
 """``--motion-gain``'s choices: the gain fitted online, or none"""
 
@@ -353,7 +361,7 @@ def _cmd_deflection(args: argparse.Namespace) -> int:
             raise InputError(f"--models: {model} has no deflection to measure; name checkpoints")
     scenario = scenario_of(read_manifest(args.data))
     dynamics = [study_dynamics(m, scenario, PLAN_FEEDBACK, CONTACT_MARGIN_M) for _, m in models]
-    tables = push_deflection(dynamics, args.data, max_windows=args.max_windows)
+    tables = push_deflection(dynamics, args.data, max_windows=args.max_windows, split=args.split)
     lines = [
         "| model | shape | off centre | windows (predicted still) | true deflection | predicted | "
         "direction error | length pred/true |",
@@ -524,10 +532,7 @@ def _parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("eval", help="the paper's Table 1 on a dataset's test split")
     s.add_argument("--data", required=True, help="dataset folder")
-    s.add_argument(
-        "--split", choices=["test", "all"], default="test",
-        help="the dataset's episodes to use: its test split, or all (a held-out dataset)",
-    )  # fmt: skip
+    _split_option(s)
     s.add_argument(
         "--checkpoints", nargs="+", required=True, help="checkpoint files ('default': shipped)"
     )
@@ -573,6 +578,7 @@ def _parser() -> argparse.ArgumentParser:
         "deflection", help="how far off-centre pushes turn the object, and how far a model says"
     )
     s.add_argument("--data", required=True, help="dataset whose test split gives the pushes")
+    _split_option(s)
     s.add_argument("--models", nargs="+", required=True,
                    help="default or checkpoint paths (LABEL=PATH names one)")  # fmt: skip
     s.add_argument("--max-windows", type=int, default=2000,

@@ -156,6 +156,9 @@ def test_push_deflection_of_a_model_that_moves_the_object_the_pusher_s_way(study
         assert r["predicted_deflection_deg"] < 0.1
         assert abs(r["direction_error_deg"] - r["true_deflection_deg"]) < 0.1
         assert r["true_deflection_deg"] > 0.1  # a real box turns away from any push a little
+    # every episode of a dataset held out as a whole: more windows than its test split
+    (every,) = push_deflection([_AlongThePush(dt)], study_data, split="all")
+    assert sum(r["windows"] for r in every) > sum(r["windows"] for r in rows)
 
 
 def test_deflection_refuses_a_backend_without_a_model(study_data, capsys):
