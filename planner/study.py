@@ -43,6 +43,7 @@ from planner.dynamics import (
 )
 from planner.trials import TrialsConfig, fmt, run_trials, summary_cells
 from scenarios import InputError
+from sim.planar import angle_between_deg
 from sim.shards import atomic_write_bytes, atomic_write_json
 
 BACKEND_MODELS = ("oracle", "no-motion")
@@ -215,12 +216,6 @@ OFF_CENTRE_BINS_DEG = ((0, 15), (15, 30), (30, 45), (45, 90))
 """how far off the object's centre a push was aimed (deg), the bins of ``push_deflection``"""
 
 
-def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """The unsigned angle (deg) between two planar vectors."""
-    c = float(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b) + 1e-12)
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
-
-
 @torch.no_grad()
 def push_deflection(
     models: list,
@@ -253,7 +248,7 @@ def push_deflection(
         to_centre = start[k, :2] - state.pusher_xy.numpy()
         if np.linalg.norm(v) < 1e-6 or np.linalg.norm(to_centre) < 1e-6:
             continue  # no push to measure from
-        off = _angle_deg(v, to_centre)
+        off = angle_between_deg(v, to_centre)
         b = next((i for i, (lo, hi) in enumerate(OFF_CENTRE_BINS_DEG) if lo <= off < hi), None)
         if b is None:  # moving away from the centre: not a push
             continue
@@ -262,8 +257,8 @@ def push_deflection(
             pred = dynamics.rollout(state, actions).object_poses[0, -1].numpy()[:2] - start[k, :2]
             still = np.linalg.norm(pred) < STILL_M  # no predicted direction to measure
             mine.setdefault((obj.shape, b), []).append(
-                (_angle_deg(v, true), np.nan if still else _angle_deg(v, pred),
-                 np.nan if still else _angle_deg(pred, true),
+                (angle_between_deg(v, true), np.nan if still else angle_between_deg(v, pred),
+                 np.nan if still else angle_between_deg(pred, true),
                  float(np.linalg.norm(pred) / np.linalg.norm(true)))
             )  # fmt: skip
     return [_deflection_rows(mine) for mine in cells]

@@ -83,7 +83,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
         lr=args.lr, seed=args.seed, device=args.device, k=args.k,
         eval_every=args.eval_every, keep_every=args.keep_every,
         rollout_steps=args.rollout_steps, init=args.init, later_fraction=args.later_fraction,
-        later_from=args.later_from, stride=args.stride, loss=args.loss, noise=args.noise,
+        later_from=args.later_from, deflected_fraction=args.deflected_fraction,
+        stride=args.stride, loss=args.loss, noise=args.noise,
         controls=args.controls, valid_channel=args.valid_channel, full_res_head=args.full_res_head,
         feedback=args.feedback,
     )  # fmt: skip
@@ -495,6 +496,12 @@ def _parser() -> argparse.ArgumentParser:
         default=0.0,
         help="share of each batch drawn from the later --data folders (0: uniform)",
     )
+    s.add_argument(
+        "--deflected-fraction", type=float, default=0.0, metavar="F",
+        help="share of each batch drawn from the examples where an object's step turns more "
+        "than 20 degrees away from the pusher's motion, about an eighth of exploration data "
+        "(0: none drawn apart)",
+    )  # fmt: skip
     s.add_argument(
         "--later-from",
         type=int,

@@ -1,5 +1,6 @@
-"""Planar poses (x_m, y_m, yaw_rad) on the table: the one home of yaw wrapping and of the pose
-error that success, trial goals and the planner's cost all measure."""
+"""Planar poses (x_m, y_m, yaw_rad) on the table: the one home of yaw wrapping, of the pose
+error that success, trial goals and the planner's cost all measure, and of the angle between
+two motions."""
 
 from __future__ import annotations
 
@@ -32,3 +33,11 @@ def pose_errors(pose: np.ndarray, goal: np.ndarray, period: float | None) -> tup
     if period is None:
         return pos, 0.0
     return pos, abs(math.degrees(float(wrap_angle(pose[2] - goal[2], period))))
+
+
+def angle_between_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The unsigned angle (deg) between planar vectors ``a`` and ``b`` (...,2), e.g. how far an
+    object's step turns away from the pusher's motion (90 where either is zero: no direction)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    c = (a * b).sum(-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1) + 1e-12)
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
