@@ -78,12 +78,12 @@ def paper_noise(name: str) -> NoiseConfig | None:
 
 
 IMAGE_KEYS = ("points", "valid", "target", "target_valid", "part")
+"""the keys of a ``PushDataset`` batch that are images (the rest are per example)"""
 DEFLECTED_MIN_DEG = 20.0
 """an example is deflected (:meth:`PushDataset.deflected`) where an object's step turns more
 than this away from the pusher's motion"""
 DEFLECTED_MIN_STEP_M = 0.002
 """steps of the pusher or an object shorter than this have no direction to measure"""
-"""the keys of a ``PushDataset`` batch that are images (the rest are per example)"""
 
 
 def subsample_batch(b: dict[str, Any], stride: int) -> dict[str, Any]:
@@ -197,8 +197,8 @@ class PushDataset(Dataset):
         if len(self.items) == 0:
             raise DataError(f"split {split!r} of {root} has no examples of horizon {horizon}")
         self.source = source[self.items[:, 0]]
-        self._deflected: np.ndarray | None = None  # deflected(), worked out when first asked
         """per item, which of the dataset folders it comes from (0: the first)"""
+        self._deflected: np.ndarray | None = None  # deflected(), worked out when first asked
         self.device = check_device(device)
         # what batches are assembled from, on the device (on the CPU, views of the arrays);
         # the camera-frame part poses of every frame at once: the same float64 product a
