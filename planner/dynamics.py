@@ -363,10 +363,17 @@ def check_contact_margin(margin_m: float | None) -> float | None:
     return margin_m
 
 
-def check_planner_rollout(feedback: str, contact_margin_m: float | None) -> None:
-    """An InputError for a bad ``--feedback`` or ``--contact-margin`` of the planner's."""
+def check_planner_rollout(
+    feedback: str, contact_margin_m: float | None, motion_gain: bool = PLAN_MOTION_GAIN
+) -> None:
+    """An InputError for a bad ``--feedback``, ``--contact-margin`` or motion gain (a bool:
+    ``"off"`` from code would be true) of the planner's."""
     check_feedback(feedback)
     check_contact_margin(contact_margin_m)
+    if not isinstance(motion_gain, bool):
+        raise InputError(
+            f"motion_gain is True or False (--motion-gain online|off), got {motion_gain!r}"
+        )
 
 
 def _to_world(T_world_cam: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
@@ -437,7 +444,9 @@ class CalibratedDynamics:
     is their least-squares ratio over the push so far, shrunk toward 1 by a prior worth
     :data:`MOTION_GAIN_PRIOR_M` of motion and kept within :data:`MOTION_GAIN_RANGE`. Each
     predicted pose of the pushed object is then its start pose plus the gain times the
-    model's predicted change. The other objects' poses and the clouds are the model's own.
+    model's predicted change. The other objects' poses, the clouds and an ensemble's spread
+    are the model's own. The fit takes each executed action to be the planned one: with
+    action noise (``improve --action-noise``) the noise's motion counts as the model's error.
     """
 
     def __init__(self, inner: Dynamics):

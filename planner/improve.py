@@ -101,7 +101,7 @@ class ImproveConfig:
     """where predicted motion fades the cost's shaping term (``CostConfig.shaping_fade``)"""
 
     def __post_init__(self) -> None:
-        check_planner_rollout(self.feedback, self.contact_margin_m)
+        check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
         CostConfig(shaping_fade=self.shaping_fade)  # refuses a bad one
         for name in ("scenarios", "data", "measure_only"):  # one name or path stands for one
             value = getattr(self, name)

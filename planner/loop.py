@@ -78,7 +78,7 @@ class PushConfig:
         if self.max_steps < 1:
             raise InputError(f"--max-steps must be a positive integer, got {self.max_steps}")
         check_device(self.device)
-        check_planner_rollout(self.feedback, self.contact_margin_m)
+        check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
 
 
 @dataclass

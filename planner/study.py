@@ -89,7 +89,7 @@ class StudyConfig:
     """where predicted motion fades the cost's shaping term (``CostConfig.shaping_fade``)"""
 
     def __post_init__(self) -> None:
-        check_planner_rollout(self.feedback, self.contact_margin_m)
+        check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
         CostConfig(shaping_fade=self.shaping_fade)  # refuses a bad one
         if len(self.models) < 1:
             raise InputError("--models needs at least one model")

@@ -73,7 +73,7 @@ class TrialsConfig:
             raise InputError(
                 f"--n and --max-steps must be positive, got {self.n} and {self.max_steps}"
             )
-        check_planner_rollout(self.feedback, self.contact_margin_m)
+        check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
 
 
 TRIAL_SET = 2

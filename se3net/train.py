@@ -87,9 +87,8 @@ class TrainConfig:
     exploration folders come first)"""
     deflected_fraction: float = 0.0
     """share of each batch drawn from the deflected examples (``PushDataset.deflected``: an
-    object's step turned away from the pusher's motion, about an eighth of the exploration
-    data), so the network sees more of the pushes whose direction it gets wrong; 0: none
-    drawn apart"""
+    object's step turned away from the pusher's motion), so the network sees more of the
+    pushes whose direction it gets wrong; 0: none drawn apart"""
     stride: int = 1
     """the network sees every stride-th pixel of the camera's image in each direction (2: a
     32x32 planning-resolution model of 64x64 data, about 4x fewer pixels a prediction)"""

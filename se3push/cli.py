@@ -463,6 +463,8 @@ def _parser() -> argparse.ArgumentParser:
     _backend_options(s)
     s.set_defaults(run=_cmd_data)
 
+    from se3net.data import DEFLECTED_MIN_DEG
+
     s = sub.add_parser("train", help="train an SE3-Net or a baseline on a dataset")
     s.add_argument(
         "--data",
@@ -499,8 +501,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--deflected-fraction", type=float, default=0.0, metavar="F",
         help="share of each batch drawn from the examples where an object's step turns more "
-        "than 20 degrees away from the pusher's motion, about an eighth of exploration data "
-        "(0: none drawn apart)",
+        f"than {DEFLECTED_MIN_DEG:g} degrees away from the pusher's motion (0: none drawn "
+        "apart)",
     )  # fmt: skip
     s.add_argument(
         "--later-from",
@@ -584,7 +586,7 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser(
         "deflection", help="how far off-centre pushes turn the object, and how far a model says"
     )
-    s.add_argument("--data", required=True, help="dataset whose test split gives the pushes")
+    s.add_argument("--data", required=True, help="dataset whose pushes are measured")
     _split_option(s)
     s.add_argument("--models", nargs="+", required=True,
                    help="default or checkpoint paths (LABEL=PATH names one)")  # fmt: skip

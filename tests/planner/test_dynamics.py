@@ -343,14 +343,19 @@ def test_the_contact_gate_keeps_the_shipped_model_s_push_and_drops_its_motion_fr
 
 
 def test_a_motion_gain_scales_the_pushed_object_s_predicted_change_and_nothing_else():
-    """With gain 2 the carried disk is predicted to move twice as far (and turn twice as far,
-    from a start yaw that is not 0); the pusher is where it was."""
+    """With gain 2 the carried disk is predicted to move twice as far from where it starts
+    (and turn twice as far, from a start yaw that is not 0); the pusher, the other objects,
+    the clouds and the spread are the model's own."""
     turning = _Carried((0.5, 0.5))
-    state = dataclasses.replace(toy_state(), object_pose=torch.tensor([0.0, 0.0, 3.0]))
+    start = torch.tensor([0.05, -0.03, 3.0])
+    state = dataclasses.replace(toy_state((0.05, -0.03)), object_pose=start)
     U = 0.1 * torch.randn(5, 4, 2, generator=torch.Generator().manual_seed(1))
     model = turning.rollout(state, U)
-    model = dataclasses.replace(model, object_poses=model.object_poses
-                                + torch.tensor([0.0, 0.0, 0.1]))  # fmt: skip
+    model = dataclasses.replace(
+        model, object_poses=model.object_poses + torch.tensor([0.0, 0.0, 0.1]),
+        other_poses=torch.rand(5, 4, 2, 3), clouds=torch.rand(5, 4, 3, 2, 2),
+        spread=torch.rand(5, 4),
+    )  # fmt: skip
 
     class Turning:
         name, differentiable = "toy", True
@@ -362,9 +367,11 @@ def test_a_motion_gain_scales_the_pushed_object_s_predicted_change_and_nothing_e
     assert calibrated.rollout(state, U) is model  # gain 1: the model's own
     calibrated.gain = 2.0
     r = calibrated.rollout(state, U)
-    torch.testing.assert_close(r.object_poses[..., :2], 2 * model.object_poses[..., :2])
+    moved = model.object_poses[..., :2] - start[:2]
+    torch.testing.assert_close(r.object_poses[..., :2], start[:2] + 2 * moved)
     torch.testing.assert_close(r.object_poses[..., 2], torch.full((5, 4), 3.2))
-    torch.testing.assert_close(r.pusher_xy, model.pusher_xy)
+    for same in ("pusher_xy", "other_poses", "clouds", "spread"):
+        assert getattr(r, same) is getattr(model, same)
 
 
 def _observed(calibrated, ratio, steps, size_m=0.01, turn=0.0):

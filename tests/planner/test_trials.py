@@ -307,8 +307,10 @@ def test_a_folder_from_before_the_motion_gain_continues_only_without_it(tmp_path
     assert run_trials(replace(cfg, n=2), tmp_path / "old", progress=False)["trials"] == 2
     still = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1)
     run_trials(still, tmp_path / "still", progress=False)
-    assert run_trials(replace(still, n=2, motion_gain=False), tmp_path / "still",
+    assert run_trials(replace(still, n=2, motion_gain=True), tmp_path / "still",
                       progress=False)["trials"] == 2  # fmt: skip
+    with pytest.raises(InputError, match="motion_gain is True or False"):
+        replace(cfg, motion_gain="off")  # a string would switch it on
     assert main(["trials", "--scenario", "tiny", "--n", "1", "--model", "no-motion",
                  "--motion-gain", "off", "--out", str(tmp_path / "cli")]) == 0  # fmt: skip
     assert json.loads((tmp_path / "cli" / "config.json").read_text())["motion_gain"] is False

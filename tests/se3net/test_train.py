@@ -250,7 +250,8 @@ def test_later_fraction_draws_that_share_of_each_batch_from_the_later_folders(ti
 def test_deflected_examples_are_steps_that_turn_an_object_away_from_the_push(tiny_data):
     """With the pusher moving 1 cm along x: an object carried along x is not deflected, one
     sent off at 45 degrees is, one nudged a millimetre sideways is not (too short to have a
-    direction), and neither is the motion of an object slot the episode does not hold."""
+    direction), and neither is the motion of an object slot the episode does not hold; with
+    the pusher standing still, an object's motion has no push to turn from."""
     ds = PushDataset(tiny_data, split="train")
     e, t = ds.items[:4, 0], ds.items[:4, 1]
     assert (e == e[0]).all() and (t == np.arange(4)).all()  # four steps of one episode
@@ -263,6 +264,10 @@ def test_deflected_examples_are_steps_that_turn_an_object_away_from_the_push(tin
     absent = ds.a["n_objects"][e[0]]  # the first slot the episode does not hold
     assert absent < poses.shape[2]
     poses[e[0], 4:, absent, :2] += (0.0, 0.02)  # "moves" sideways at step 3
+    assert ds.deflected()[:4].tolist() == [False, True, False, False]
+    pusher[e[0], 2:] = pusher[e[0], 2]  # still from step 2 on, as the object goes off at 45
+    poses[e[0], 3:, 0, :2] += (0.007, 0.007)
+    ds._deflected = None  # worked out again from the changed arrays
     assert ds.deflected()[:4].tolist() == [False, True, False, False]
 
 
