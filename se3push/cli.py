@@ -290,6 +290,13 @@ def _shared_planning_options(s: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
+def _rollout_settings(args: argparse.Namespace) -> dict:
+    """How the planner rolls a learned model, from :func:`_shared_planning_options`' flags:
+    ``feedback``, ``contact_margin_m`` and ``motion_gain``, as the configs name them."""
+    return {"feedback": args.feedback, "contact_margin_m": args.contact_margin,
+            "motion_gain": args.motion_gain == "online"}  # fmt: skip
+
+
 def _planning_options(s: argparse.ArgumentParser) -> None:
     """The common optimiser and cost settings of a closed-loop push."""
     from planner.base import PlannerConfig
@@ -328,9 +335,7 @@ def _planning_configs(args: argparse.Namespace) -> dict:
                              iterations=args.iterations, elites=args.elites)  # fmt: skip
     cost = CostConfig(w_spread=args.spread_weight, w_disturb=args.disturb_weight,
                       shaping_fade=args.shaping_fade)  # fmt: skip
-    return {"planning": planning, "cost": cost, "feedback": args.feedback,
-            "contact_margin_m": args.contact_margin,
-            "motion_gain": args.motion_gain == "online"}  # fmt: skip
+    return {"planning": planning, "cost": cost, **_rollout_settings(args)}
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
@@ -339,9 +344,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
     cfg = StudyConfig(scenario=args.scenario, data=args.data, models=tuple(args.models),
                       trials=args.trials, seed=args.seed, planner=args.planner,
                       max_steps=args.max_steps, max_examples=args.max_examples,
-                      feedback=args.feedback, contact_margin_m=args.contact_margin,
-                      motion_gain=args.motion_gain == "online",
-                      shaping_fade=args.shaping_fade)  # fmt: skip
+                      shaping_fade=args.shaping_fade, **_rollout_settings(args))  # fmt: skip
     result = run_study(cfg, args.out, workers=args.workers)
     print((Path(args.out) / "study.md").read_text())
     print(f"wrote {args.out}/study.md, study.json, study.png and trials/")
@@ -398,8 +401,7 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         action_noise=args.action_noise, finetune_iters=args.finetune_iters,
         rollout_steps=args.rollout_steps, lr=args.lr, planner=args.planner,
         max_steps=args.max_steps, visited_fraction=args.visited_fraction,
-        feedback=args.feedback, contact_margin_m=args.contact_margin,
-        motion_gain=args.motion_gain == "online", shaping_fade=args.shaping_fade,
+        shaping_fade=args.shaping_fade, **_rollout_settings(args),
     )  # fmt: skip
     run_improve(cfg, args.out, workers=args.workers, **_backend(args))
     print((Path(args.out) / "improve.md").read_text())
