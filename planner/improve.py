@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.base import HORIZON_BEFORE, PlannerConfig
 from planner.cost import COST_BEFORE_OPTIONS, CostConfig
 from planner.dynamics import (
     CONTACT_MARGIN_M,
@@ -91,6 +92,8 @@ class ImproveConfig:
     eval_every: int = 250
     planner: str = "cem"
     max_steps: int = 60
+    horizon: int = PlannerConfig.horizon
+    """actions per plan, in the collection pushes and the held-out trials"""
     feedback: str = PLAN_FEEDBACK
     """how the planner feeds a learned model's predictions back (``se3net.rollout.FEEDBACK``)"""
     contact_margin_m: float | None = CONTACT_MARGIN_M
@@ -103,6 +106,7 @@ class ImproveConfig:
     def __post_init__(self) -> None:
         check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
         CostConfig(shaping_fade=self.shaping_fade)  # refuses a bad one
+        self.planning()  # refuses a bad horizon
         for name in ("scenarios", "data", "measure_only"):  # one name or path stands for one
             value = getattr(self, name)
             object.__setattr__(self, name, (value,) if isinstance(value, str) else tuple(value))
@@ -118,6 +122,10 @@ class ImproveConfig:
             raise InputError(f"action noise must be in [0, 1], got {self.action_noise}")
         if not 0.0 <= self.visited_fraction < 1.0:
             raise InputError(f"--visited-fraction must be in [0, 1), got {self.visited_fraction}")
+
+    def planning(self) -> PlannerConfig:
+        """The optimiser's settings: the defaults but the horizon."""
+        return PlannerConfig(horizon=self.horizon)
 
     def collect_seed(self, r: int) -> int:
         return self.seed * COLLECT_STREAM + r
@@ -151,7 +159,8 @@ def record_trial(
 
     push = PushConfig(
         goal=tuple(trial["goal"]), scenario=scenario, model=model, planner=cfg.planner,
-        seed=trial["reset_seed"], max_steps=cfg.max_steps, action_noise=cfg.action_noise,
+        planning=cfg.planning(), seed=trial["reset_seed"], max_steps=cfg.max_steps,
+        action_noise=cfg.action_noise,
         feedback=cfg.feedback, contact_margin_m=cfg.contact_margin_m,
         motion_gain=cfg.motion_gain, cost=CostConfig(shaping_fade=cfg.shaping_fade),
     )  # fmt: skip
@@ -288,7 +297,8 @@ def run_improve(
         old, new = json.loads(meta.read_text()), json.loads(json.dumps(asdict(cfg)))
         old.pop("rounds", None), new.pop("rounds")  # more rounds continue a run
         # runs from before the planner's options had them as they were before
-        old = {**ROLLOUT_BEFORE_OPTIONS, "shaping_fade": COST_BEFORE_OPTIONS["shaping_fade"], **old}
+        old = {**ROLLOUT_BEFORE_OPTIONS, "shaping_fade": COST_BEFORE_OPTIONS["shaping_fade"],
+               "horizon": HORIZON_BEFORE, **old}  # fmt: skip
         if old != new:
             raise InputError(
                 f"{out} holds another improve run ({'; '.join(differences(old, new))}); "
@@ -301,7 +311,8 @@ def run_improve(
         for scenario, name in zip(cfg.measured(), names, strict=True):
             tcfg = TrialsConfig(
                 scenario=scenario, n=cfg.heldout, model=model, planner=cfg.planner,
-                seed=cfg.seed, max_steps=cfg.max_steps, feedback=cfg.feedback,
+                planning=cfg.planning(), seed=cfg.seed, max_steps=cfg.max_steps,
+                feedback=cfg.feedback,
                 contact_margin_m=cfg.contact_margin_m, motion_gain=cfg.motion_gain,
                 cost=CostConfig(shaping_fade=cfg.shaping_fade),
             )  # fmt: skip

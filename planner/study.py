@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from planner.base import HORIZON_BEFORE, PlannerConfig
 from planner.cost import CostConfig
 from planner.dynamics import (
     CONTACT_MARGIN_M,
@@ -77,6 +78,8 @@ class StudyConfig:
     """seed of the trial set"""
     planner: str = "cem"
     max_steps: int = 60
+    horizon: int = PlannerConfig.horizon
+    """actions per plan, in the trials and in the horizon error"""
     max_examples: int = 1000
     """held-out one-step examples (and horizon windows) per model"""
     feedback: str = PLAN_FEEDBACK
@@ -91,6 +94,7 @@ class StudyConfig:
     def __post_init__(self) -> None:
         check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
         CostConfig(shaping_fade=self.shaping_fade)  # refuses a bad one
+        PlannerConfig(horizon=self.horizon)  # refuses a bad horizon
         if len(self.models) < 1:
             raise InputError("--models needs at least one model")
         labels = [label for label, _ in parse_models(self.models)]
@@ -435,12 +439,11 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
     Per-model trials go to ``out/trials/<label>`` and resume like ``se3push trials``;
     accuracy figures are cached in ``out/accuracy/<label>.json``.
     """
-    from planner.base import PlannerConfig
     from planner.loop import push_scenario
 
     out = Path(out)
     push_scenario(cfg.scenario)
-    horizon = PlannerConfig().horizon
+    horizon = cfg.horizon
     rows = []
     for label, model in parse_models(cfg.models):
         safe = label.replace("/", "_").replace("=", "_")
@@ -448,10 +451,12 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
         # the horizon error is the model rolled as the planner rolls it: a cache made with
         # other planner settings (one from before them: ROLLOUT_BEFORE_OPTIONS) is measured again;
         # the motion gain is fitted in the closed loop, so open-loop windows never see it
-        rolled = {"feedback": cfg.feedback, "contact_margin_m": cfg.contact_margin_m}
+        rolled = {"feedback": cfg.feedback, "contact_margin_m": cfg.contact_margin_m,
+                  "horizon": horizon}  # fmt: skip
         acc = json.loads(cache.read_text()) if cache.exists() else None
-        before = {k: ROLLOUT_BEFORE_OPTIONS[k] for k in rolled}
-        if acc is None or acc.pop("rolled", before) != rolled:
+        before = {k: ROLLOUT_BEFORE_OPTIONS[k] for k in ("feedback", "contact_margin_m")}
+        # a cache from before the horizon was recorded was rolled 4 steps
+        if acc is None or {"horizon": HORIZON_BEFORE, **acc.pop("rolled", before)} != rolled:
             acc = {
                 **model_accuracy(model, cfg.data, max_examples=cfg.max_examples),
                 **horizon_pose_error(
@@ -467,7 +472,8 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
             atomic_write_json(cache, {**acc, "rolled": rolled})
         trials = TrialsConfig(
             scenario=cfg.scenario, n=cfg.trials, model=model, planner=cfg.planner,
-            seed=cfg.seed, max_steps=cfg.max_steps, feedback=cfg.feedback,
+            planning=PlannerConfig(horizon=horizon), seed=cfg.seed, max_steps=cfg.max_steps,
+            feedback=cfg.feedback,
             contact_margin_m=cfg.contact_margin_m, motion_gain=cfg.motion_gain,
             cost=CostConfig(shaping_fade=cfg.shaping_fade),
         )  # fmt: skip

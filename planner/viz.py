@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from planner.base import PlanInfo
+from planner.base import PlanInfo, PlannerConfig
 from sim.shards import atomic_write_bytes
 from sim.world import Observation, PushWorld
 
@@ -91,7 +91,8 @@ class MeshcatVisualiser:
         self.vis: Any = None
 
     def start(self, world: PushWorld, obs: Observation, goal: np.ndarray, *, object_index: int = 0,
-              horizon: int = 4, model: torch.nn.Module | None = None) -> None:  # fmt: skip
+              horizon: int = PlannerConfig.horizon,
+              model: torch.nn.Module | None = None) -> None:  # fmt: skip
         import meshcat
         import meshcat.animation
         import meshcat.geometry as g

@@ -262,10 +262,17 @@ MOTION_GAINS = ("online", "off")
 
 def _shared_planning_options(s: argparse.ArgumentParser) -> None:
     """The planner's settings that study and improve share with trials and plan-push:
-    ``--shaping-fade`` (a cost setting), and how the planner rolls a learned model,
-    ``--feedback``, ``--contact-margin`` and ``--motion-gain``."""
+    ``--horizon``, ``--shaping-fade`` (a cost setting), and how the planner rolls a learned
+    model, ``--feedback``, ``--contact-margin`` and ``--motion-gain``."""
+    from planner.base import HORIZON_BEFORE, PlannerConfig
     from planner.cost import SHAPING_FADES, CostConfig
     from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK, PLAN_MOTION_GAIN
+
+    s.add_argument(
+        "--horizon", type=int, default=PlannerConfig.horizon,
+        help=f"actions per plan, 0.15 s each (default {PlannerConfig.horizon}; runs from before "
+        f"it was the default planned {HORIZON_BEFORE})",
+    )  # fmt: skip
 
     s.add_argument(
         "--shaping-fade", choices=SHAPING_FADES, default=CostConfig.shaping_fade,
@@ -303,8 +310,6 @@ def _planning_options(s: argparse.ArgumentParser) -> None:
     from planner.cost import CostConfig
 
     d = PlannerConfig()
-    s.add_argument("--horizon", type=int, default=d.horizon,
-                   help=f"actions per plan, 0.15 s each (default {d.horizon})")  # fmt: skip
     s.add_argument("--samples", type=int, default=d.samples,
                    help=f"candidate sequences (cem: in the first iteration; default "
                    f"{d.samples})")  # fmt: skip
@@ -344,7 +349,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
     cfg = StudyConfig(scenario=args.scenario, data=args.data, models=tuple(args.models),
                       trials=args.trials, seed=args.seed, planner=args.planner,
                       max_steps=args.max_steps, max_examples=args.max_examples,
-                      shaping_fade=args.shaping_fade, **_rollout_settings(args))  # fmt: skip
+                      shaping_fade=args.shaping_fade, horizon=args.horizon,
+                      **_rollout_settings(args))  # fmt: skip
     result = run_study(cfg, args.out, workers=args.workers)
     print((Path(args.out) / "study.md").read_text())
     print(f"wrote {args.out}/study.md, study.json, study.png and trials/")
@@ -401,7 +407,7 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         action_noise=args.action_noise, finetune_iters=args.finetune_iters,
         rollout_steps=args.rollout_steps, lr=args.lr, planner=args.planner,
         max_steps=args.max_steps, visited_fraction=args.visited_fraction,
-        shaping_fade=args.shaping_fade, **_rollout_settings(args),
+        shaping_fade=args.shaping_fade, horizon=args.horizon, **_rollout_settings(args),
     )  # fmt: skip
     run_improve(cfg, args.out, workers=args.workers, **_backend(args))
     print((Path(args.out) / "improve.md").read_text())

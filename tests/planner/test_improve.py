@@ -180,11 +180,12 @@ def test_the_same_scenario_twice_is_refused_before_anything_is_written(
 def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(
     tiny_data, start_model, tmp_path
 ):
-    """An improve folder written before ``feedback``, ``contact_margin_m``, ``shaping_fade``
-    and ``motion_gain`` existed planned on the grid with no gate and no gain, the shaping faded
-    everywhere: it is refused with today's defaults, and continues with those."""
+    """An improve folder written before ``feedback``, ``contact_margin_m``, ``shaping_fade``,
+    ``motion_gain`` and ``horizon`` existed planned on the grid with no gate and no gain, the
+    shaping faded everywhere, 4 steps ahead: it is refused with today's defaults, and continues
+    with those."""
     cfg = _cfg(tiny_data, start_model)
-    later = ("feedback", "contact_margin_m", "shaping_fade", "motion_gain")
+    later = ("feedback", "contact_margin_m", "shaping_fade", "motion_gain", "horizon")
     meta = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in later}
     (tmp_path / "imp").mkdir()
     (tmp_path / "imp" / "config.json").write_text(json.dumps(meta))
@@ -194,10 +195,14 @@ def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(
     with pytest.raises(ValueError, match="shaping_fade: folder has 'everywhere'"):
         run_improve(before, tmp_path / "imp")
     before = dataclasses.replace(before, shaping_fade="everywhere")
+    with pytest.raises(ValueError, match="horizon: folder has 4"):
+        run_improve(before, tmp_path / "imp")
+    before = dataclasses.replace(before, horizon=4)
     assert run_improve(before, tmp_path / "imp")["rounds"]
     trials = json.loads((tmp_path / "imp" / "round_0" / "heldout" / "tiny" / "config.json")
                         .read_text())  # fmt: skip
     assert trials["cost"]["shaping_fade"] == "everywhere" and trials["motion_gain"] is False
+    assert trials["planning"]["horizon"] == 4
 
 
 def test_finetuning_keeps_the_starting_network_and_its_loss(tiny_data, tmp_path):

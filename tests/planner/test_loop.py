@@ -28,7 +28,7 @@ def test_closed_loop_with_the_oracle_reaches_a_nearby_goal():
     assert result.success_tight and result.reason == "reached"
     assert result.final_pos_err_m <= 0.02 and len(steps) == result.steps
     assert steps[-1].pos_err_m < steps[0].pos_err_m
-    assert len(steps[0].predicted_poses) == 4
+    assert len(steps[0].predicted_poses) == PlannerConfig().horizon == 3
     # the oracle is the simulator: what it predicts for each executed action happens
     d = result.diagnostics
     assert d["moved_steps"] > 0 and d["phantom_steps"] == 0 and d["missed_steps"] == 0
@@ -127,7 +127,7 @@ def test_the_planning_and_cost_settings_reach_the_planner(monkeypatch):
     run_push(PushConfig(goal=goal, scenario="tiny", model="no-motion", max_steps=1, seed=5,
                         cost=CostConfig(w_spread=0.25),
                         planning=PlannerConfig(horizon=2, samples=9, seed=99)))  # fmt: skip
-    assert seen == [(1.0, 4, 32, 5), (0.25, 2, 9, 5)]  # the planner's seed is the push's
+    assert seen == [(1.0, 3, 32, 5), (0.25, 2, 9, 5)]  # the planner's seed is the push's
 
 
 @pytest.mark.parametrize("steps", ["0", "-3"])
@@ -169,7 +169,8 @@ class _HalfOracle:
 
 
 def _half_oracle_push(monkeypatch, motion_gain):
-    """A push on the tiny scenario whose 'learned' model is :class:`_HalfOracle`."""
+    """A push on the tiny scenario whose 'learned' model is :class:`_HalfOracle` (4 steps
+    ahead: with 3 the push is over before enough steps move the object to check the gain)."""
     import planner.loop as loop
 
     worlds = []
@@ -182,7 +183,7 @@ def _half_oracle_push(monkeypatch, motion_gain):
     monkeypatch.setattr(loop, "PushWorld", Kept)
     monkeypatch.setattr(loop, "make_dynamics", lambda *a, **k: _HalfOracle(worlds[-1]))
     cfg = PushConfig(goal=_nearby_goal(-0.08), scenario="tiny", model="default", max_steps=30,
-                     planning=PlannerConfig(samples=12, iterations=2),
+                     planning=PlannerConfig(horizon=4, samples=12, iterations=2),
                      motion_gain=motion_gain)  # fmt: skip
     return run_push(cfg)
 

@@ -61,6 +61,8 @@ def test_model_labels_and_bad_settings():
         StudyConfig("tiny", "d", models=("oracle",), contact_margin_m=-0.01)
     with pytest.raises(ValueError, match="--shaping-fade is one of behind, everywhere"):
         StudyConfig("tiny", "d", models=("oracle",), shaping_fade="never")
+    with pytest.raises(ValueError, match="horizon must be a positive integer, got 0"):
+        StudyConfig("tiny", "d", models=("oracle",), horizon=0)
 
 
 @pytest.fixture(scope="module")
@@ -105,10 +107,12 @@ def test_study_end_to_end_on_tiny(study_data, tmp_path):
     trials = json.loads((tmp_path / "study" / "trials" / "late" / "config.json").read_text())
     assert (trials["feedback"], trials["contact_margin_m"]) == (cfg.feedback, cfg.contact_margin_m)
     assert trials["cost"]["shaping_fade"] == "everywhere"  # the study's, not the default
+    assert trials["planning"]["horizon"] == cfg.horizon == 3
     # a second run reuses the cached accuracy and the finished trials
     cache = tmp_path / "study" / "accuracy" / "late.json"
     cached = json.loads(cache.read_text())
-    assert cached["rolled"] == {"feedback": cfg.feedback, "contact_margin_m": cfg.contact_margin_m}
+    assert cached["rolled"] == {"feedback": cfg.feedback, "contact_margin_m": cfg.contact_margin_m,
+                                "horizon": 3}  # fmt: skip
     cache.write_text(json.dumps({**cached, "horizon_pos_err_cm": 99.0}))
     again = run_study(cfg, tmp_path / "study")
     assert [r["success_tight"] for r in again["rows"]] == [
@@ -118,6 +122,11 @@ def test_study_end_to_end_on_tiny(study_data, tmp_path):
     # a cache rolled otherwise (from before the planner's options: the grid, no gate) is not
     cache.write_text(json.dumps({k: v for k, v in cached.items() if k != "rolled"}
                                 | {"horizon_pos_err_cm": 99.0}))  # fmt: skip
+    measured = run_study(cfg, tmp_path / "study")["rows"][-1]["horizon_pos_err_cm"]
+    assert measured == pytest.approx(rows["late"]["horizon_pos_err_cm"])
+    # nor is one from before the horizon was recorded (rolled 4 steps, not the study's 3)
+    rolled = {k: v for k, v in cached["rolled"].items() if k != "horizon"}
+    cache.write_text(json.dumps({**cached, "rolled": rolled, "horizon_pos_err_cm": 99.0}))
     measured = run_study(cfg, tmp_path / "study")["rows"][-1]["horizon_pos_err_cm"]
     assert measured == pytest.approx(rows["late"]["horizon_pos_err_cm"])
 
