@@ -61,8 +61,8 @@ def test_the_policy_fits_the_motion_gain_as_the_loop_does(monkeypatch):
     env = gymnasium.make(ENV_ID, scenario="tiny", max_steps=30)
     monkeypatch.setattr(loop, "make_dynamics", lambda *a, **k: _HalfOracle(env.unwrapped.world))
     obs, _ = env.reset(options={"world_seed": 0, "goal": _nearby_goal(-0.08)})
-    policy = MPCPolicy(env, model="default", planning=PlannerConfig(samples=12, iterations=2),
-                       motion_gain=True)  # fmt: skip
+    planning = PlannerConfig(horizon=4, samples=12, iterations=2)  # _half_oracle_push's
+    policy = MPCPolicy(env, model="default", planning=planning, motion_gain=True)
     actions = []
     while True:
         actions.append(policy(obs).tolist())
