@@ -94,7 +94,7 @@ class StudyConfig:
     def __post_init__(self) -> None:
         check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
         CostConfig(shaping_fade=self.shaping_fade)  # refuses a bad one
-        PlannerConfig(horizon=self.horizon)  # refuses a bad horizon
+        self.planning()  # refuses a bad horizon
         if len(self.models) < 1:
             raise InputError("--models needs at least one model")
         labels = [label for label, _ in parse_models(self.models)]
@@ -105,6 +105,10 @@ class StudyConfig:
                 f"--trials and --max-examples must be positive, got {self.trials}, "
                 f"{self.max_examples}"
             )
+
+    def planning(self) -> PlannerConfig:
+        """The optimiser's settings of the trials: the defaults but the horizon."""
+        return PlannerConfig(horizon=self.horizon)
 
 
 def parse_models(models: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:
@@ -472,7 +476,7 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
             atomic_write_json(cache, {**acc, "rolled": rolled})
         trials = TrialsConfig(
             scenario=cfg.scenario, n=cfg.trials, model=model, planner=cfg.planner,
-            planning=PlannerConfig(horizon=horizon), seed=cfg.seed, max_steps=cfg.max_steps,
+            planning=cfg.planning(), seed=cfg.seed, max_steps=cfg.max_steps,
             feedback=cfg.feedback,
             contact_margin_m=cfg.contact_margin_m, motion_gain=cfg.motion_gain,
             cost=CostConfig(shaping_fade=cfg.shaping_fade),
