@@ -320,10 +320,10 @@ class LearnedDynamics:
             sel = (mask & valid).flatten().nonzero()[:, 0]
             if len(sel) < 3:  # out of sight: nothing to predict from
                 return pose0.expand(K, H, 3) + 0.0 * torch.stack(predicted, 1).sum()
-            src = _to_world(T, points.flatten(1)[:, sel].T)[:, :2]  # (N,2)
+            src = to_world(T, points.flatten(1)[:, sel].T)[:, :2]  # (N,2)
             poses = []
             for x in predicted:
-                dst = _to_world(T, x.flatten(2)[:, :, sel].transpose(1, 2))[..., :2]  # (K,N,2)
+                dst = to_world(T, x.flatten(2)[:, :, sel].transpose(1, 2))[..., :2]  # (K,N,2)
                 yaw, xy = planar_fit(src, dst, pose0[:2])
                 poses.append(torch.cat([xy, (pose0[2] + yaw)[:, None]], 1))
             return torch.stack(poses, 1)
@@ -376,7 +376,7 @@ def check_planner_rollout(
         )
 
 
-def _to_world(T_world_cam: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+def to_world(T_world_cam: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """Camera-frame points (...,N,3) in the world frame."""
     return points @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
 

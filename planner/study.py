@@ -41,6 +41,7 @@ from planner.dynamics import (
     PlanState,
     check_planner_rollout,
     make_dynamics,
+    to_world,
 )
 from planner.trials import TrialsConfig, fmt, run_trials, summary_cells
 from scenarios import InputError
@@ -223,6 +224,40 @@ it out of the angle medians (it counts such windows as ``predicted_still``)"""
 OFF_CENTRE_BINS_DEG = ((0, 15), (15, 30), (30, 45), (45, 90))
 """how far off the object's centre a push was aimed (deg), the bins of ``push_deflection``"""
 
+LEFT_BEHIND = 0.5
+"""a point of the pushed object is left behind by a predicted step that moves it less than this
+share of how far the object's true rigid motion moves it"""
+
+
+def left_behind(state: PlanState, cloud: torch.Tensor, start: np.ndarray, end: np.ndarray) -> float:
+    """The share of the pushed object's seen points that a predicted cloud leaves behind
+    (``LEFT_BEHIND``): a model that moves the object as one body leaves none, one whose masks
+    tear it (part of it kept on a static mask) leaves that part.
+
+    Args:
+        state: the step's planner state (its cloud at the camera's resolution).
+        cloud: (3,h,w) the predicted cloud after the step, camera frame, at the model's
+            resolution (every ``H // h``-th pixel of the camera's).
+        start, end: (3,) the object's true poses before and after the step.
+
+    Returns:
+        The share, or nan where no point of the object is seen at the model's resolution.
+    """
+    from se3net.data import subsample
+
+    stride = state.points.shape[-2] // cloud.shape[-2]
+    seen = subsample(state.object_mask & state.valid, stride).flatten()
+    if not seen.any():  # hidden at the model's resolution
+        return float("nan")
+    T = state.T_world_cam.to(cloud)
+    before = to_world(T, subsample(state.points, stride).flatten(1)[:, seen].T)[:, :2].numpy()
+    after = to_world(T, cloud.flatten(1)[:, seen].T)[:, :2].numpy()
+    turn = float(end[2] - start[2])
+    c, s = np.cos(turn), np.sin(turn)
+    true = (before - start[:2]) @ np.array([[c, s], [-s, c]]) + end[:2]  # under the true motion
+    moved = np.linalg.norm(after - before, axis=1)
+    return float(np.mean(moved < LEFT_BEHIND * np.linalg.norm(true - before, axis=1)))
+
 
 @torch.no_grad()
 def push_deflection(
@@ -244,7 +279,8 @@ def push_deflection(
     (``OFF_CENTRE_BINS_DEG``): the windows, and the medians of the true and the predicted
     deflection (deg from the pusher's velocity), of the angle between the predicted and the
     true displacement (over windows where the model predicts motion; None where it predicts
-    none), and of their length ratio.
+    none), and of their length ratio; and the mean share of the object's points the predicted
+    cloud leaves behind (:func:`left_behind`; None for a backend without clouds).
     """
     from se3net.data import PushDataset
 
@@ -262,12 +298,15 @@ def push_deflection(
             continue
         true = end[k, :2] - start[k, :2]
         for dynamics, mine in zip(models, cells, strict=True):
-            pred = dynamics.rollout(state, actions).object_poses[0, -1].numpy()[:2] - start[k, :2]
+            roll = dynamics.rollout(state, actions, clouds=True)
+            pred = roll.object_poses[0, -1].numpy()[:2] - start[k, :2]
             still = np.linalg.norm(pred) < STILL_M  # no predicted direction to measure
+            behind = np.nan if roll.clouds is None else left_behind(
+                state, roll.clouds[0, -1], start[k], end[k])  # fmt: skip
             mine.setdefault((obj.shape, b), []).append(
                 (angle_between_deg(v, true), np.nan if still else angle_between_deg(v, pred),
                  np.nan if still else angle_between_deg(pred, true),
-                 float(np.linalg.norm(pred) / np.linalg.norm(true)))
+                 float(np.linalg.norm(pred) / np.linalg.norm(true)), behind)
             )  # fmt: skip
     return [_deflection_rows(mine) for mine in cells]
 
@@ -286,6 +325,7 @@ def _deflection_rows(cells: dict[tuple[str, int], list[tuple[float, ...]]]) -> l
             "predicted_deflection_deg": None if pred_deg is None else float(pred_deg),
             "direction_error_deg": None if err_deg is None else float(err_deg),
             "length_ratio": float(np.median(a[:, 3])),
+            "left_behind": None if np.isnan(a[:, 4]).all() else float(np.nanmean(a[:, 4])),
         })  # fmt: skip
     return rows
 

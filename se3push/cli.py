@@ -374,8 +374,8 @@ def _cmd_deflection(args: argparse.Namespace) -> int:
     tables = push_deflection(dynamics, args.data, max_windows=args.max_windows, split=args.split)
     lines = [
         "| model | shape | off centre | windows (predicted still) | true deflection | predicted | "
-        "direction error | length pred/true |",
-        "|---|---|---|---|---|---|---|---|",
+        "direction error | length pred/true | left behind |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for (label, _), rows in zip(models, tables, strict=True):
         for r in rows:
@@ -384,10 +384,11 @@ def _cmd_deflection(args: argparse.Namespace) -> int:
                 "–" if x is None else f"{x:.1f} deg"
                 for x in (r["predicted_deflection_deg"], r["direction_error_deg"])
             )
+            behind = "–" if r["left_behind"] is None else f"{r['left_behind']:.0%}"
             lines.append(
                 f"| {label} | {r['shape']} | {lo}-{hi} deg | {r['windows']} "
                 f"({r['predicted_still']}) | {r['true_deflection_deg']:.1f} deg | {pred} | "
-                f"{err} | {r['length_ratio']:.2f} |"
+                f"{err} | {r['length_ratio']:.2f} | {behind} |"
             )
     print("\n".join(lines))
     if args.json:

@@ -1,5 +1,6 @@
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -165,9 +166,43 @@ def test_push_deflection_of_a_model_that_moves_the_object_the_pusher_s_way(study
         assert r["predicted_deflection_deg"] < 0.1
         assert abs(r["direction_error_deg"] - r["true_deflection_deg"]) < 0.1
         assert r["true_deflection_deg"] > 0.1  # a real box turns away from any push a little
+        assert r["left_behind"] is None  # no clouds to measure it on
     # every episode of a dataset held out as a whole: more windows than its test split
     (every,) = push_deflection([_AlongThePush(dt)], study_data, split="all")
     assert sum(r["windows"] for r in every) > sum(r["windows"] for r in rows)
+
+
+def test_left_behind_counts_the_points_a_predicted_step_does_not_carry(study_data):
+    """A cloud whose object moves by its true motion leaves none of it behind, one that moves
+    only the object's points on one side of its centre leaves the other side, and the
+    observed cloud itself (nothing moved) leaves all of it: the measure of a torn object."""
+    from planner.dynamics import to_world
+    from planner.study import _moving_windows, _window_states, left_behind
+    from se3net.data import PushDataset
+
+    ds = PushDataset(study_data, split="all", horizon=1)
+    pick, start, end = _moving_windows(ds, study_data, 0, 4, "all")
+    state, _, _ = next(_window_states(ds, pick, start, 0))
+    start, end = start[0], end[0]
+    assert np.hypot(*(end - start)[:2]) > 1e-3  # the object moves
+    T = state.T_world_cam
+    seen = (state.object_mask & state.valid).flatten()
+    world = to_world(T, state.points.flatten(1)[:, seen].T).double()
+    c, s = np.cos(end[2] - start[2]), np.sin(end[2] - start[2])
+    xy = (world[:, :2] - torch.from_numpy(start[:2])) @ torch.tensor([[c, s], [-s, c]])
+    moved = torch.cat([xy + torch.from_numpy(end[:2]), world[:, 2:]], 1)
+    # back to the camera frame: p_cam = R^T (p_world - t)
+    back = ((moved - T[:3, 3].double()) @ T[:3, :3].double()).float().T
+    carried = state.points.flatten(1).clone()
+    carried[:, seen] = back
+    assert left_behind(state, carried.view_as(state.points), start, end) == 0.0
+    assert left_behind(state, state.points, start, end) == 1.0
+    one_side = world[:, 0] > float(start[0])  # the object's points beyond its centre in x
+    torn = state.points.flatten(1).clone()
+    torn[:, seen] = torch.where(one_side[None], back, state.points.flatten(1)[:, seen])
+    share = left_behind(state, torn.view_as(state.points), start, end)
+    assert share == pytest.approx(1 - one_side.float().mean().item())
+    assert 0.2 < share < 0.8
 
 
 def test_deflection_refuses_a_backend_without_a_model(study_data, capsys):
