@@ -92,6 +92,19 @@ def exploitation(steps: Sequence[dict[str, float]]) -> dict[str, Any]:
     )
 
 
+def path_efficiency(trials: Iterable[Sequence[dict[str, float]]]) -> float | None:
+    """How directly the pushes carried the object: of the distance it travelled, the share that
+    brought it closer to the goal position, pooled over trials (the summed actual progress
+    over the summed actual displacement of their :func:`step_figures`). 1 is a straight line
+    to the goal; a planner whose model turns the pushes wrong moves the object as far per
+    step but wanders. None where the object never moved."""
+    progress = path = 0.0
+    for steps in trials:
+        progress += sum(s["actual_progress_m"] for s in steps)
+        path += sum(s["actual_disp_m"] for s in steps)
+    return progress / path if path > MIN_PROGRESS_M else None
+
+
 def pauses(actual_disp_m: Sequence[float]) -> list[int]:
     """The lengths of the runs of still steps (below ``STILL_M``) between two steps that moved
     the object, over one trial's actual displacements."""

@@ -22,7 +22,7 @@ import numpy as np
 
 from planner.base import ONE_PLANNER_SETTINGS, PlannerConfig
 from planner.cost import COST_BEFORE_OPTIONS, CostConfig
-from planner.diagnostics import pooled
+from planner.diagnostics import path_efficiency, pooled
 from planner.dynamics import (
     CONTACT_MARGIN_M,
     PLAN_FEEDBACK,
@@ -152,6 +152,8 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     out["median_others_moved_m"] = float(np.median(moved)) if moved else None
     out["others_moved_over_1cm"] = float(np.mean(np.array(moved) > 0.01)) if moved else None
     out["diagnostics"] = pooled(r["diagnostics"] for r in records)
+    # records from before the per-step figures were kept have none to pool
+    out["path_efficiency"] = path_efficiency(r["per_step"] for r in records if "per_step" in r)
     gains = [r["motion_gain"] for r in records if r.get("motion_gain") is not None]
     out["median_motion_gain"] = float(np.median(gains)) if gains else None
     # where generalisation stops: successes by the pushed object's shape and mass

@@ -134,6 +134,12 @@ def _cmd_trials(args: argparse.Namespace) -> int:
         f"  median replan           {s['median_replan_ms_median']:.0f} ms\n"
         f"  model exploitation      {_diagnostics_line(s)}\n"
         + (
+            f"  path efficiency         {s['path_efficiency']:.2f} (of the distance the object "
+            f"travelled, the share toward the goal)\n"
+            if s.get("path_efficiency") is not None
+            else ""
+        )
+        + (
             f"  motion gain             {s['median_motion_gain']:.2f} (median at the end)\n"
             if s.get("median_motion_gain") is not None
             else ""

@@ -251,6 +251,32 @@ def test_summaries_count_successes_by_the_pushed_objects_shape_and_mass():
     assert "median_motion_gain" not in s["by_shape"]["T"]
 
 
+def test_path_efficiency_is_the_share_of_the_objects_travel_that_nears_the_goal():
+    """One trial pushes the object straight at the goal, one pushes it away and back: of the
+    4 cm travelled in all, 2 cm brought an object nearer. Records without per-step figures
+    (from before they were kept) are left out, and an object that never moved has none."""
+    from planner.diagnostics import exploitation, step_figures
+    from planner.trials import summarize
+
+    goal = np.array([0.1, 0.0, 0.0])
+
+    def rec(*xs, per_step=True):
+        poses = [np.array([x, 0.0, 0.0]) for x in xs]
+        steps = [step_figures(a, a, b, goal) for a, b in zip(poses[:-1], poses[1:], strict=True)]
+        r = {"success_tight": False, "success_loose": False, "final_pos_err_m": 0.0,
+             "final_yaw_err_deg": 0.0, "steps": len(steps), "replan_ms_median": 1.0,
+             "diagnostics": exploitation(steps)}  # fmt: skip
+        return {**r, "per_step": steps} if per_step else r
+
+    straight, back = rec(0.0, 0.01, 0.02), rec(0.0, -0.01, 0.0)
+    assert summarize([straight])["path_efficiency"] == pytest.approx(1.0)
+    assert summarize([straight, back])["path_efficiency"] == pytest.approx(0.5)
+    assert summarize([straight, back, rec(0.0, 0.05, per_step=False)])[
+        "path_efficiency"
+    ] == pytest.approx(0.5)
+    assert summarize([rec(0.0, 0.0, 0.0)])["path_efficiency"] is None
+
+
 @pytest.mark.scale
 def test_ray_gives_the_same_records_as_the_local_pool_and_resumes(ray_local, tmp_path):
     """The same trial set on the local pool and on Ray (2 workers): the same records, in trial
