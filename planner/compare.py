@@ -19,7 +19,7 @@ import numpy as np
 
 from planner.diagnostics import pauses
 from planner.loop import LOOSE, TIGHT
-from planner.trials import fmt, wilson
+from planner.trials import fmt, same_trial, wilson
 from scenarios import InputError
 from scenarios.config import differences
 
@@ -147,13 +147,6 @@ def _draw(config: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def _same_trial(ra: dict[str, Any], rb: dict[str, Any]) -> bool:
-    return ra["reset_seed"] == rb["reset_seed"] and all(
-        np.shape(ra[k]) == np.shape(rb[k]) and np.allclose(ra[k], rb[k], rtol=0, atol=1e-6)
-        for k in ("start", "goal")
-    )
-
-
 def compare_trials(
     a: str | Path, b: str | Path, *, tolerance: str = "tight", n: int | None = None
 ) -> dict[str, Any]:
@@ -201,7 +194,7 @@ def compare_trials(
                     f"{folder} holds {held} of the first {n} trials; finish it with "
                     f"`se3push trials --n {n} --out {folder}` (same settings) or ask for less --n"
                 )
-    unlike = [i for i in trials if not _same_trial(recs_a[i], recs_b[i])]
+    unlike = [i for i in trials if not same_trial(recs_a[i], recs_b[i])]
     if unlike:
         i = unlike[0]
         ka, kb = ({k: recs[i][k] for k in SAME_TRIAL_KEYS} for recs in (recs_a, recs_b))

@@ -36,7 +36,7 @@ from scenarios.config import differences
 from sim import PushWorld
 from sim.jobs import Backend, run_jobs
 from sim.planar import pose_errors
-from sim.shards import atomic_write_json
+from sim.shards import atomic_write_bytes, atomic_write_json
 
 
 @dataclass(frozen=True)
@@ -104,6 +104,37 @@ def draw_trial(scenario: Scenario, seed: int, i: int) -> dict[str, Any]:
     raise InputError(
         f"scenario {scenario.name}: no goal satisfies goals.* from start {start.tolist()}"
     )
+
+
+def same_trial(ra: dict[str, Any], rb: dict[str, Any]) -> bool:
+    """Whether two trial records (or :func:`draw_trial` results) are the same trial: the same
+    reset seed, start and goal."""
+    return ra["reset_seed"] == rb["reset_seed"] and all(
+        np.shape(ra[k]) == np.shape(rb[k]) and np.allclose(ra[k], rb[k], rtol=0, atol=1e-6)
+        for k in ("start", "goal")
+    )
+
+
+def check_draws(
+    records: dict[int, dict[str, Any]], scenario: Scenario, seed: int, out: Path
+) -> None:
+    """Refuse a folder whose records are not the trials the scenario draws today: its file
+    changed since they ran (a folder is compared by the scenario's name), and a set that mixed
+    the two would measure neither."""
+    for i in sorted(records):
+        if not same_trial(records[i], draw_trial(scenario, seed, i)):
+            raise InputError(
+                f"{out} holds trials that scenario {scenario.name!r} no longer draws (trial "
+                f"{i}'s world, start or goal differs: the scenario changed since they ran); "
+                "use a new --out folder"
+            )
+
+
+def write_log(log: Path, records: dict[int, dict[str, Any]]) -> None:
+    """``trials.jsonl`` rewritten in trial order, atomically: an interruption leaves the old
+    log or the new one, never a cut one."""
+    text = "".join(json.dumps(records[i]) + "\n" for i in sorted(records))
+    atomic_write_bytes(log, text.encode())
 
 
 def run_trial(cfg: TrialsConfig, i: int) -> dict[str, Any]:
@@ -339,7 +370,8 @@ def run_trials(
                 except json.JSONDecodeError:
                     continue  # a line cut by an interruption: that trial runs again
                 records[rec["trial"]] = rec
-        log.write_text("".join(json.dumps(records[i]) + "\n" for i in sorted(records)))
+        check_draws(records, load_scenario(cfg.scenario), cfg.seed, out)
+        write_log(log, records)
     todo = [i for i in range(cfg.n) if i not in records]
     bar = tqdm(
         total=cfg.n, initial=cfg.n - len(todo), unit="trial", disable=not progress, desc="trials"
@@ -358,7 +390,7 @@ def run_trials(
         record(rec)
     bar.close()
     if todo:  # appended as they finished; kept in trial order, whatever ran them
-        log.write_text("".join(json.dumps(records[i]) + "\n" for i in sorted(records)))
+        write_log(log, records)
     ordered = [records[i] for i in range(cfg.n)]
     summary = {"config": asdict(cfg), **summarize(ordered)}
     if not prefix:  # the folder's files describe its whole set, not a prefix asked of it

@@ -1,5 +1,6 @@
 import json
 from dataclasses import replace
+from importlib import resources
 
 import numpy as np
 import pytest
@@ -361,3 +362,23 @@ def test_a_folder_from_before_the_shaping_fade_continues_only_as_everywhere(tmp_
         main(["trials", "--scenario", "tiny", "--n", "1", "--model", "no-motion",
               "--shaping-fade", "never", "--out", str(tmp_path / "x")])  # fmt: skip
     assert e.value.code == 2
+
+
+def test_a_folder_whose_scenario_file_changed_is_refused_and_kept(tmp_path):
+    """A folder is matched to its scenario by name: when the file has changed since its trials
+    ran, today's draw differs and the folder is refused (its log untouched, exit 2 from the
+    command line); the same file extends it."""
+    toml = tmp_path / "table.toml"
+    toml.write_text((resources.files("scenarios") / "tiny.toml").read_text())
+    cfg = TrialsConfig(str(toml), n=2, model="no-motion", max_steps=1)
+    out = tmp_path / "set"
+    run_trials(cfg, out, progress=False)
+    assert run_trials(replace(cfg, n=3), out, progress=False)["trials"] == 3
+    log = (out / "trials.jsonl").read_text()
+    toml.write_text(toml.read_text().replace("region_m = [-0.06, 0.10, -0.08, 0.08]",
+                                             "region_m = [-0.06, 0.10, -0.08, 0.0]"))  # fmt: skip
+    with pytest.raises(InputError, match="no longer draws"):
+        run_trials(replace(cfg, n=4), out, progress=False)
+    assert (out / "trials.jsonl").read_text() == log
+    assert main(["trials", "--scenario", str(toml), "--n", "4", "--model", "no-motion",
+                 "--max-steps", "1", "--out", str(out)]) == 2  # fmt: skip
