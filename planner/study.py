@@ -41,6 +41,7 @@ from planner.dynamics import (
     PlanState,
     check_planner_rollout,
     make_dynamics,
+    planar_fit,
     to_world,
 )
 from planner.trials import TrialsConfig, fmt, run_trials, summary_cells
@@ -226,22 +227,25 @@ OFF_CENTRE_BINS_DEG = ((0, 15), (15, 30), (30, 45), (45, 90))
 
 LEFT_BEHIND = 0.5
 """a point of the pushed object is left behind by a predicted step that moves it less than this
-share of how far the object's true rigid motion moves it"""
+share of how far the rigid motion fitted to the object's predicted points moves it"""
 
 
-def left_behind(state: PlanState, cloud: torch.Tensor, start: np.ndarray, end: np.ndarray) -> float:
+def left_behind(state: PlanState, cloud: torch.Tensor) -> float:
     """The share of the pushed object's seen points that a predicted cloud leaves behind
-    (``LEFT_BEHIND``): a model that moves the object as one body leaves none, one whose masks
-    tear it (part of it kept on a static mask) leaves that part.
+    (``LEFT_BEHIND``), measured against the planar rigid motion that best fits the object's
+    predicted points (``planar_fit``, as the planner tracks it): a model that moves the object
+    as one body leaves none, however far it moves it (a short step is the length ratio's to
+    measure, not this); one whose masks tear it (part of it kept on a static mask) leaves
+    that part.
 
     Args:
         state: the step's planner state (its cloud at the camera's resolution).
         cloud: (3,h,w) the predicted cloud after the step, camera frame, at the model's
             resolution (every ``H // h``-th pixel of the camera's).
-        start, end: (3,) the object's true poses before and after the step.
 
     Returns:
-        The share, or nan where no point of the object is seen at the model's resolution.
+        The share, or nan where no point of the object is seen at the model's resolution or
+        the fitted motion moves its points less than ``STILL_M`` on average (no step to tear).
     """
     from se3net.data import subsample
 
@@ -250,13 +254,17 @@ def left_behind(state: PlanState, cloud: torch.Tensor, start: np.ndarray, end: n
     if not seen.any():  # hidden at the model's resolution
         return float("nan")
     T = state.T_world_cam.to(cloud)
-    before = to_world(T, subsample(state.points, stride).flatten(1)[:, seen].T)[:, :2].numpy()
-    after = to_world(T, cloud.flatten(1)[:, seen].T)[:, :2].numpy()
-    turn = float(end[2] - start[2])
-    c, s = np.cos(turn), np.sin(turn)
-    true = (before - start[:2]) @ np.array([[c, s], [-s, c]]) + end[:2]  # under the true motion
-    moved = np.linalg.norm(after - before, axis=1)
-    return float(np.mean(moved < LEFT_BEHIND * np.linalg.norm(true - before, axis=1)))
+    before = to_world(T, subsample(state.points, stride).flatten(1)[:, seen].T)[:, :2].double()
+    after = to_world(T, cloud.flatten(1)[:, seen].T)[:, :2].double()
+    centre = before.mean(0)
+    yaw, xy = planar_fit(before, after[None], centre)
+    c, s = torch.cos(yaw[0]), torch.sin(yaw[0])
+    fitted = (before - centre) @ torch.stack([torch.stack([c, s]), torch.stack([-s, c])]) + xy
+    rigid = (fitted - before).norm(dim=1)
+    if float(rigid.mean()) < STILL_M:
+        return float("nan")
+    moved = (after - before).norm(dim=1)
+    return float((moved < LEFT_BEHIND * rigid).double().mean())
 
 
 @torch.no_grad()
@@ -301,8 +309,7 @@ def push_deflection(
             roll = dynamics.rollout(state, actions, clouds=True)
             pred = roll.object_poses[0, -1].numpy()[:2] - start[k, :2]
             still = np.linalg.norm(pred) < STILL_M  # no predicted direction to measure
-            behind = np.nan if roll.clouds is None else left_behind(
-                state, roll.clouds[0, -1], start[k], end[k])  # fmt: skip
+            behind = np.nan if roll.clouds is None else left_behind(state, roll.clouds[0, -1])
             mine.setdefault((obj.shape, b), []).append(
                 (angle_between_deg(v, true), np.nan if still else angle_between_deg(v, pred),
                  np.nan if still else angle_between_deg(pred, true),

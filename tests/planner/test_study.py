@@ -172,10 +172,11 @@ def test_push_deflection_of_a_model_that_moves_the_object_the_pusher_s_way(study
     assert sum(r["windows"] for r in every) > sum(r["windows"] for r in rows)
 
 
-def test_left_behind_counts_the_points_a_predicted_step_does_not_carry(study_data):
-    """A cloud whose object moves by its true motion leaves none of it behind, one that moves
-    only the object's points on one side of its centre leaves the other side, and the
-    observed cloud itself (nothing moved) leaves all of it: the measure of a torn object."""
+def test_left_behind_counts_the_points_a_torn_prediction_does_not_carry(study_data):
+    """A cloud whose object moves as one body leaves none of it behind, whether by its true
+    motion or by a rigid step too short (a short step is not a tear); one that moves only the
+    object's points on one side of its centre leaves the other side; the observed cloud itself
+    (nothing moved) has no step to tear."""
     from planner.dynamics import to_world
     from planner.study import _moving_windows, _window_states, left_behind
     from se3net.data import PushDataset
@@ -188,19 +189,28 @@ def test_left_behind_counts_the_points_a_predicted_step_does_not_carry(study_dat
     T = state.T_world_cam
     seen = (state.object_mask & state.valid).flatten()
     world = to_world(T, state.points.flatten(1)[:, seen].T).double()
-    c, s = np.cos(end[2] - start[2]), np.sin(end[2] - start[2])
-    xy = (world[:, :2] - torch.from_numpy(start[:2])) @ torch.tensor([[c, s], [-s, c]])
-    moved = torch.cat([xy + torch.from_numpy(end[:2]), world[:, 2:]], 1)
-    # back to the camera frame: p_cam = R^T (p_world - t)
-    back = ((moved - T[:3, 3].double()) @ T[:3, :3].double()).float().T
-    carried = state.points.flatten(1).clone()
-    carried[:, seen] = back
-    assert left_behind(state, carried.view_as(state.points), start, end) == 0.0
-    assert left_behind(state, state.points, start, end) == 1.0
+
+    def rigidly(share: float) -> torch.Tensor:
+        """The object's points moved by ``share`` of its true step (turn and slide), camera
+        frame (3,N)."""
+        turn = share * (end[2] - start[2])
+        c, s = np.cos(turn), np.sin(turn)
+        xy = (world[:, :2] - torch.from_numpy(start[:2])) @ torch.tensor([[c, s], [-s, c]])
+        to = start[:2] + share * (end[:2] - start[:2])
+        moved = torch.cat([xy + torch.from_numpy(to), world[:, 2:]], 1)
+        return ((moved - T[:3, 3].double()) @ T[:3, :3].double()).float().T  # p_cam
+
+    def cloud(points: torch.Tensor) -> torch.Tensor:
+        out = state.points.flatten(1).clone()
+        out[:, seen] = points
+        return out.view_as(state.points)
+
+    assert left_behind(state, cloud(rigidly(1.0))) == 0.0
+    assert left_behind(state, cloud(rigidly(0.3))) == 0.0  # short, but whole
+    assert np.isnan(left_behind(state, state.points))
     one_side = world[:, 0] > float(start[0])  # the object's points beyond its centre in x
-    torn = state.points.flatten(1).clone()
-    torn[:, seen] = torch.where(one_side[None], back, state.points.flatten(1)[:, seen])
-    share = left_behind(state, torn.view_as(state.points), start, end)
+    torn = torch.where(one_side[None], rigidly(1.0), state.points.flatten(1)[:, seen])
+    share = left_behind(state, cloud(torn))
     assert share == pytest.approx(1 - one_side.float().mean().item())
     assert 0.2 < share < 0.8
 
