@@ -44,7 +44,7 @@ from planner.dynamics import (
     planar_fit,
     to_world,
 )
-from planner.trials import TrialsConfig, fmt, run_trials, summary_cells
+from planner.trials import TrialsConfig, fmt, run_trials, summary_cells, weights_of
 from scenarios import InputError
 from sim.planar import angle_between_deg
 from sim.shards import atomic_write_bytes, atomic_write_json
@@ -102,6 +102,12 @@ class StudyConfig:
         labels = [label for label, _ in parse_models(self.models)]
         if len(set(labels)) != len(labels):
             raise InputError(f"two models share a label in {labels}; name them with LABEL=PATH")
+        folders = [folder_name(label) for label in labels]
+        if len(set(folders)) != len(folders):
+            raise InputError(
+                f"two labels in {labels} name one folder ({', '.join(folders)}: '/' and '=' "
+                "become '_'); name the models apart with LABEL=PATH"
+            )
         if self.trials < 1 or self.max_examples < 1:
             raise InputError(
                 f"--trials and --max-examples must be positive, got {self.trials}, "
@@ -484,6 +490,11 @@ def plot_study(rows: list[dict[str, Any]], out: Path) -> None:
     save_figure(fig, out)
 
 
+def folder_name(label: str) -> str:
+    """The name of a study row's trials folder and accuracy cache."""
+    return label.replace("/", "_").replace("=", "_")
+
+
 def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[str, Any]:
     """Measure every model; write ``study.md``, ``study.json`` and ``study.png`` to ``out``.
 
@@ -497,17 +508,25 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
     horizon = cfg.horizon
     rows = []
     for label, model in parse_models(cfg.models):
-        safe = label.replace("/", "_").replace("=", "_")
+        safe = folder_name(label)
         cache = out / "accuracy" / f"{safe}.json"
         # the horizon error is the model rolled as the planner rolls it: a cache made with
         # other planner settings (one from before them: ROLLOUT_BEFORE_OPTIONS) is measured again;
         # the motion gain is fitted in the closed loop, so open-loop windows never see it
         rolled = {"feedback": cfg.feedback, "contact_margin_m": cfg.contact_margin_m,
                   "horizon": horizon}  # fmt: skip
+        # and the figures are of these weights on this data: a cache of others (or one from
+        # before this was recorded, which cannot say) is measured again
+        measured = {"data": str(cfg.data), "max_examples": cfg.max_examples,
+                    "model_sha256": weights_of(model)}  # fmt: skip
         acc = json.loads(cache.read_text()) if cache.exists() else None
         before = {k: ROLLOUT_BEFORE_OPTIONS[k] for k in ("feedback", "contact_margin_m")}
-        # a cache from before the horizon was recorded was rolled 4 steps
-        if acc is None or {"horizon": HORIZON_BEFORE, **acc.pop("rolled", before)} != rolled:
+        if acc is not None:
+            # a cache from before the horizon was recorded was rolled 4 steps
+            was_rolled = {"horizon": HORIZON_BEFORE, **acc.pop("rolled", before)}
+            if was_rolled != rolled or acc.pop("measured", None) != measured:
+                acc = None
+        if acc is None:
             acc = {
                 **model_accuracy(model, cfg.data, max_examples=cfg.max_examples),
                 **horizon_pose_error(
@@ -520,7 +539,7 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
                 ),  # fmt: skip
             }
             cache.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_json(cache, {**acc, "rolled": rolled})
+            atomic_write_json(cache, {**acc, "rolled": rolled, "measured": measured})
         trials = TrialsConfig(
             scenario=cfg.scenario, n=cfg.trials, model=model, planner=cfg.planner,
             planning=cfg.planning(), seed=cfg.seed, max_steps=cfg.max_steps,

@@ -266,7 +266,7 @@ def worker_backend(workers: int, threads: int | None, backend: str, address: str
     return Backend(backend, workers, address, worker_threads(threads))
 
 
-def _weights_of(model: str) -> str | None:
+def weights_of(model: str) -> str | None:
     """Which weights a trial folder's model names (a shipped name such as ``default`` may
     change between versions): the checkpoints' SHA-256, joined like the model; None for the
     simulator and no-motion backends."""
@@ -342,7 +342,7 @@ def run_trials(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta_path, log = out / "config.json", out / "trials.jsonl"
-    meta = {**asdict(cfg), "trial_set": TRIAL_SET, "model_sha256": _weights_of(cfg.model)}
+    meta = {**asdict(cfg), "trial_set": TRIAL_SET, "model_sha256": weights_of(cfg.model)}
     old_meta = json.loads(meta_path.read_text()) if meta_path.exists() else None
     if old_meta is not None:
         old, new = _compared(old_meta), _compared(meta)

@@ -1,4 +1,5 @@
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ from planner.study import (
     rank_correlations,
     run_study,
 )
+from scenarios import InputError
 from se3net.train import TrainConfig, train
 
 
@@ -130,6 +132,17 @@ def test_study_end_to_end_on_tiny(study_data, tmp_path):
     cache.write_text(json.dumps({**cached, "rolled": rolled, "horizon_pos_err_cm": 99.0}))
     measured = run_study(cfg, tmp_path / "study")["rows"][-1]["horizon_pos_err_cm"]
     assert measured == pytest.approx(rows["late"]["horizon_pos_err_cm"])
+    # nor one of other weights or data (the label names a path, whose file may change)
+    early = json.loads((tmp_path / "study" / "accuracy" / "early.json").read_text())
+    assert cached["measured"]["data"] == str(tiny_data) and cached["measured"]["max_examples"] == 40
+    assert len({early["measured"]["model_sha256"], cached["measured"]["model_sha256"]}) == 2
+    for other in ({"data": "elsewhere"}, {"model_sha256": early["measured"]["model_sha256"]}):
+        stale = {**cached, "measured": {**cached["measured"], **other}, "horizon_pos_err_cm": 99.0}
+        cache.write_text(json.dumps(stale))
+        measured = run_study(cfg, tmp_path / "study")["rows"][-1]["horizon_pos_err_cm"]
+        assert measured == pytest.approx(rows["late"]["horizon_pos_err_cm"])
+    with pytest.raises(InputError, match="name one folder"):
+        replace(cfg, models=("a/b=x.pt", "a_b=y.pt"))
 
 
 class _AlongThePush:
