@@ -94,7 +94,8 @@ class StepRecord:
     predicted_poses: list[list[float]]
     """(H,3) the chosen plan's predicted object poses"""
     predicted_disp_m: float
-    """the object's displacement the plan predicted for the executed action"""
+    """the object's displacement the plan predicted for its first action (the executed one,
+    but for ``PushConfig.action_noise``, whose noise the prediction does not see)"""
     actual_disp_m: float
     """the displacement that happened"""
     predicted_progress_m: float
