@@ -16,11 +16,12 @@ from typing import Any
 import numpy as np
 import torch
 
+from scenarios import InputError
 from se3net.checkpoint import DEFAULT_MODEL, load_checkpoint, model_config
 from se3net.data import PushDataset, evenly_spaced, paper_noise, subsample_batch
 from se3net.metrics import FlowStats, MaskStats
 from se3net.rollout import check_feedback, reprojection, rollout
-from sim.shards import portable_path
+from sim.shards import atomic_write_bytes, portable_path
 
 MULTI_STEPS = 5
 EVAL_NOISE_SEED = 12345
@@ -66,18 +67,29 @@ def checkpoint_name(path: str | Path) -> str:
 
 
 def checkpoint_names(paths: list[str | Path]) -> list[str]:
-    """Names that tell the checkpoints apart: ``checkpoint_name``, with more of the run's path
-    where two would share one (``round_1/model`` and ``round_3/model``)."""
+    """Names that tell the checkpoints apart: ``checkpoint_name``, with more of the path in
+    front where two would share one (``round_1/model`` and ``round_3/model`` for their
+    ``best.pt``; ``c1/model`` and ``c2/model`` for two ``model.pt``).
+
+    Raises:
+        InputError: one checkpoint given twice (no name tells it apart from itself).
+    """
     names = [checkpoint_name(p) for p in paths]
-    for depth in range(2, 8):
+    for depth in range(1, 8):
         clash = {n for n in names if names.count(n) > 1}
         if not clash:
-            break
+            return names
         for i, path in enumerate(paths):
             if names[i] in clash:
-                folder = Path(path).resolve().parent
-                names[i] = "/".join([*folder.parts[-depth:-1], checkpoint_name(path)])
-    return names
+                path = Path(path).resolve()
+                # a best.pt or last.pt is named by its folder already: more starts above it
+                above = path.parent.parent if path.stem in ("best", "last") else path.parent
+                names[i] = "/".join([*above.parts[len(above.parts) - depth :],
+                                     checkpoint_name(path)])  # fmt: skip
+    twice = sorted({str(p) for p in paths if [str(q) for q in paths].count(str(p)) > 1})
+    raise InputError(
+        f"checkpoint {twice[0] if twice else names[0]} is given twice; give each checkpoint once"
+    )
 
 
 @torch.no_grad()
@@ -286,9 +298,8 @@ def evaluate(
         )  # fmt: skip
         for p, name in zip(paths, names, strict=True)
     ]
-    (out_dir / "table.md").write_text(table_markdown(results, portable_path(data)))
-    (out_dir / "eval.json").write_text(
-        json.dumps({r.name: r.to_dict() for r in results}, indent=1) + "\n"
-    )
+    atomic_write_bytes(out_dir / "table.md", table_markdown(results, portable_path(data)).encode())
+    eval_json = json.dumps({r.name: r.to_dict() for r in results}, indent=1) + "\n"
+    atomic_write_bytes(out_dir / "eval.json", eval_json.encode())
     save_pictures(paths, data, out_dir, names=names, split=split)
     return results

@@ -380,6 +380,19 @@ def test_checkpoints_of_like_named_runs_get_names_that_tell_them_apart(tmp_path)
         "sb_se3net",
         "iter_002500",
     ]
+    # checkpoints that are not a run's best or last are told apart by their own folders
+    assert checkpoint_names([tmp_path / "c1/model.pt", tmp_path / "c2/model.pt"]) == [
+        "c1/model",
+        "c2/model",
+    ]
+    snaps = [
+        tmp_path / "r1/iter_000003.pt",
+        tmp_path / "r2/iter_000003.pt",
+        tmp_path / "r2/best.pt",
+    ]
+    assert checkpoint_names(snaps) == ["r1/iter_000003", "r2/iter_000003", "r2"]
+    with pytest.raises(InputError, match="given twice"):
+        checkpoint_names([tmp_path / "c1/model.pt", tmp_path / "c1/model.pt"])
 
 
 def test_the_split_loss_does_not_grow_with_the_static_background_the_moving_one_does():
