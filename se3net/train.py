@@ -38,7 +38,7 @@ from se3net.distributed import Ranks, broadcast, join, leave, mean_over_ranks, r
 from se3net.metrics import LOSSES, FlowStats, point_loss
 from se3net.model import ModelConfig, build_model, sharpening
 from se3net.rollout import Reprojection, check_feedback, reprojection, rollout
-from sim.shards import DataError, portable_path
+from sim.shards import DataError, atomic_write_bytes, portable_path
 
 
 class TrainingDiverged(RuntimeError):
@@ -207,6 +207,16 @@ class StepLoss(torch.nn.Module):
         return rollout_loss(
             self.model, b, self.steps, self.dt, loss=self.loss, reproject=self.reproject, **sharpen
         )
+
+
+def _logged_by(line: str, iteration: int) -> bool:
+    """Whether a line of ``metrics.jsonl`` is an evaluation at or before ``iteration``; a line
+    cut by an interruption is not (it was being written before its checkpoint, so the resumed
+    run evaluates that iteration again)."""
+    try:
+        return json.loads(line)["iteration"] <= iteration
+    except json.JSONDecodeError:
+        return False
 
 
 def learning_rate(cfg: TrainConfig, it: int) -> float:
@@ -392,9 +402,8 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
         resumed_figures = blob["extra"]
         log = out / "metrics.jsonl"  # drop evaluations logged after the resumed checkpoint
         if ranks.main:
-            lines = [ln for ln in log.read_text().splitlines()
-                     if json.loads(ln)["iteration"] <= start]  # fmt: skip
-            log.write_text("".join(ln + "\n" for ln in lines))
+            lines = [ln for ln in log.read_text().splitlines() if _logged_by(ln, start)]
+            atomic_write_bytes(log, "".join(ln + "\n" for ln in lines).encode())
     else:
         if cfg.init is None:
             fit_normalisation(model, ds, rng)

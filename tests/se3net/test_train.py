@@ -68,6 +68,8 @@ def test_resume_gives_the_same_weights_as_an_uninterrupted_run(tiny_data, tmp_pa
     monkeypatch.setattr(train_mod, "validate", real)
     with pytest.raises(FileExistsError, match="--resume"):
         train(_cfg(tiny_data, tmp_path / "b"), progress=False)
+    with open(tmp_path / "b" / "metrics.jsonl", "a") as f:  # killed while logging iteration 8
+        f.write('{"iteration": 8, "train_lo')
     train(_cfg(tiny_data, tmp_path / "b"), resume=True, progress=False)
     a, b = read_checkpoint(tmp_path / "a" / "last.pt"), read_checkpoint(tmp_path / "b" / "last.pt")
     for k in a["state_dict"]:
