@@ -396,6 +396,9 @@ def generate(
         if path.name not in manifest["shards"]:
             path.unlink()
     todo = [i for i in range(cfg.n_shards) if shard_name(i) not in manifest["shards"]]
+    if todo and manifest["complete"]:  # a repair: readers refuse the folder until it is done
+        manifest["complete"] = False
+        atomic_write_json(out_dir / MANIFEST, manifest)
     bar = tqdm(
         total=cfg.episodes, unit="ep", disable=not progress, desc="episodes", dynamic_ncols=True
     )

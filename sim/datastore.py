@@ -41,7 +41,13 @@ def read_manifest(root: str | Path) -> dict[str, Any]:
         manifest = json.loads(path.read_text())
     except json.JSONDecodeError as err:
         raise DataError(f"{path} is corrupted ({err}); regenerate the dataset") from None
-    fmt = manifest["identity"]["format"]
+    identity = manifest.get("identity") if isinstance(manifest, dict) else None
+    if not isinstance(identity, dict) or "format" not in identity:
+        raise DataError(
+            f"{path} is not a dataset manifest (no identity and format); point to a folder made "
+            "with `se3push data`"
+        )
+    fmt = identity["format"]
     if fmt != DATA_FORMAT:
         raise DataError(f"{root} holds data format {fmt}; this code reads format {DATA_FORMAT}")
     if not manifest.get("complete"):

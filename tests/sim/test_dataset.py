@@ -66,6 +66,41 @@ def test_interrupted_run_resumes_to_the_same_bytes(reference, tmp_path, monkeypa
     assert not list(tmp_path.glob(".shard_*"))
 
 
+def test_a_repair_of_damaged_shards_leaves_the_folder_incomplete_until_it_ends(
+    reference, tmp_path, monkeypatch
+):
+    """Shards damaged after a complete run are made again; a repair interrupted half-way
+    leaves a folder that readers refuse (not one that reads as complete with a shard
+    missing), and finishing it gives the reference's bytes."""
+    generate(CFG, tmp_path, progress=False)
+    for name in ("shard_00000.npz", "shard_00001.npz"):
+        (tmp_path / name).write_bytes(b"damaged")
+    real = dataset.make_shard
+    calls = []
+
+    def interrupted(cfg, i, out_dir):
+        if calls:
+            raise KeyboardInterrupt
+        calls.append(i)
+        return real(cfg, i, out_dir)
+
+    monkeypatch.setattr(dataset, "make_shard", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        generate(CFG, tmp_path, progress=False)
+    with pytest.raises(DataError, match="incomplete"):
+        read_manifest(tmp_path)
+    monkeypatch.setattr(dataset, "make_shard", real)
+    generate(CFG, tmp_path, progress=False)
+    assert read_manifest(tmp_path)["complete"]
+    assert shard_bytes(tmp_path) == shard_bytes(reference)
+
+
+def test_a_folder_whose_manifest_is_not_a_datasets_is_refused(tmp_path):
+    (tmp_path / "manifest.json").write_text('{"name": "my notes"}')
+    with pytest.raises(DataError, match="is not a dataset manifest"):
+        read_manifest(tmp_path)
+
+
 def test_episode_depends_only_on_seed_and_index():
     s = load_scenario("tiny")
     a = dataset.run_episode(s, CFG, 3)
