@@ -245,12 +245,11 @@ def finetune(cfg: ImproveConfig, init: str, data: list[str], out: Path) -> str:
     """Fine-tune ``init`` on the pooled ``data`` (the exploration folders first, then the
     planner-visited ones) into ``out``, the same network trained with the same point loss;
     returns the best checkpoint."""
-    from se3net.checkpoint import read_checkpoint
-    from se3net.model import ModelConfig
+    from se3net.checkpoint import model_config, read_checkpoint
     from se3net.train import TrainConfig, train
 
     blob = read_checkpoint(init)
-    net = ModelConfig(**blob["model"])
+    net = model_config(init)
     # the point loss: recorded with the weights; before that, only in a run's last.pt
     run = (blob.get("train_state") or {}).get("config", {})
     loss = blob.get("extra", {}).get("loss", run.get("loss", TrainConfig.loss))

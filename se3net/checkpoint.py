@@ -8,6 +8,7 @@ Loading one that does not fit the scenario or this code is refused, saying what 
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import io
 import json
@@ -102,9 +103,19 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
         raise CheckpointError(f"checkpoint {path} does not exist; train one with `se3push train`")
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
-    except (RuntimeError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError, ValueError) as err:
+    except (
+        RuntimeError,
+        EOFError,
+        KeyError,
+        zipfile.BadZipFile,
+        pickle.UnpicklingError,
+        ValueError,
+    ) as err:
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0]
+        if isinstance(err, KeyError):  # the unpickler's, on a file torch.save did not write
+            first = "it is not a file torch.save wrote"
         raise CheckpointError(
-            f"checkpoint {path} cannot be read (truncated or damaged?): {err}"
+            f"checkpoint {path} cannot be read (not a checkpoint, truncated or damaged?): {first}"
         ) from None
     if not isinstance(blob, dict) or blob.get("format") != CHECKPOINT_FORMAT:
         found = blob.get("format") if isinstance(blob, dict) else type(blob).__name__
@@ -116,7 +127,27 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
 
 def model_config(path: str | Path) -> ModelConfig:
     """The network configuration a checkpoint holds (say, to read its data at its stride)."""
-    return ModelConfig(**read_checkpoint(path)["model"])
+    return _config_of(read_checkpoint(path), path)
+
+
+def _config_of(blob: dict[str, Any], path: str | Path) -> ModelConfig:
+    """A checkpoint's network configuration, or a CheckpointError naming the settings this
+    code does not know (a checkpoint of another version of the code)."""
+    stored = blob.get("model")
+    if not isinstance(stored, dict):
+        raise CheckpointError(f"checkpoint {path} holds no network configuration")
+    known = {f.name for f in dataclasses.fields(ModelConfig)}
+    unknown = sorted(set(stored) - known)
+    if unknown:
+        raise CheckpointError(
+            f"checkpoint {path} has network settings this code does not know "
+            f"({', '.join(unknown)}): it was written by another version of se3push"
+        )
+    try:
+        return ModelConfig(**stored)
+    except (TypeError, ValueError, InputError) as err:
+        raise CheckpointError(f"checkpoint {path} holds a network configuration this code "
+                              f"refuses: {err}") from None  # fmt: skip
 
 
 def load_checkpoint(
@@ -140,7 +171,7 @@ def load_checkpoint(
     """
     device = check_device(device)
     blob = read_checkpoint(path)
-    cfg = ModelConfig(**blob["model"])
+    cfg = _config_of(blob, path)
     if variant is not None and cfg.variant != variant:
         raise CheckpointError(f"checkpoint {path} is a {cfg.variant!r} model, not {variant!r}")
     if layout_named(blob["control_layout"]) is None:

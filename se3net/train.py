@@ -306,7 +306,7 @@ def init_weights(cfg: TrainConfig, mcfg: ModelConfig, ds: PushDataset) -> dict[s
     from se3net.checkpoint import CheckpointError, load_checkpoint
 
     net, blob = load_checkpoint(cfg.init, scenario=ds.scenario)
-    theirs = ModelConfig(**blob["model"]).to_dict()  # settings added later at their defaults
+    theirs = net.cfg.to_dict()  # settings added later at their defaults
     if theirs != mcfg.to_dict():
         diffs = differences(theirs, mcfg.to_dict(), old_has="--init has",
                             new_has="this run has")  # fmt: skip

@@ -7,7 +7,7 @@ import torch
 
 import se3net.train as train_mod
 from scenarios import InputError, load_scenario
-from se3net.checkpoint import CheckpointError, load_checkpoint, read_checkpoint
+from se3net.checkpoint import CheckpointError, load_checkpoint, model_config, read_checkpoint
 from se3net.data import PushDataset
 from se3net.evaluate import evaluate
 from se3net.metrics import point_loss
@@ -122,6 +122,15 @@ def test_mismatched_checkpoints_are_refused(tiny_data, tmp_path):
         load_checkpoint(broken)
     with pytest.raises(CheckpointError, match="does not exist"):
         load_checkpoint(tmp_path / "nope.pt")
+    (tmp_path / "notes.pt").write_text("hello\n")  # a file torch.save did not write
+    with pytest.raises(CheckpointError, match="cannot be read.*not a file torch.save wrote"):
+        load_checkpoint(tmp_path / "notes.pt")
+    newer = read_checkpoint(path)
+    newer["model"] = {**newer["model"], "attention": True}  # from a later version of the code
+    torch.save(newer, tmp_path / "newer.pt")
+    for read in (load_checkpoint, model_config):
+        with pytest.raises(CheckpointError, match=r"code does not know \(attention\)"):
+            read(tmp_path / "newer.pt")
     blob = read_checkpoint(path)
     blob["model"] = dataclasses.asdict(ModelConfig(variant="se3net", k=5, height=32, width=32))
     torch.save(blob, tmp_path / "other_k.pt")
