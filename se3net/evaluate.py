@@ -282,9 +282,14 @@ def evaluate(
     ``out_dir``. Paths under the current directory are recorded relative to it."""
     import json
 
+    if max_examples < 2:
+        raise InputError(
+            f"--max-examples must be at least 2 (half of them score the fed-back steps), got "
+            f"{max_examples}"
+        )
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     names = checkpoint_names(paths)
+    out_dir.mkdir(parents=True, exist_ok=True)
     results = [
         evaluate_checkpoint(
             p,

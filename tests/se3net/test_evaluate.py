@@ -69,3 +69,16 @@ def test_evaluations_fed_back_rows_are_the_planners_rollout(work, tiny_data):
                              b["target_valid"][j : j + 1, k])  # fmt: skip
     for k in range(MULTI_STEPS):
         assert result.multi_step_mse[k] == pytest.approx(steps[k].mse_cm2, rel=1e-4)
+
+
+def test_eval_refuses_too_few_examples_to_score_before_writing_anything(work, tiny_data, tmp_path):
+    """With under 2 examples the fed-back rows would score none (0.000, a perfect score to
+    the eye): refused in one line, exit 2, and no folder is made."""
+    from se3push.cli import main
+
+    best = str(work / "runs" / "tiny" / "best.pt")
+    for n in ("0", "1", "-1"):
+        out = tmp_path / f"n{n}"
+        assert main(["eval", "--checkpoints", best, "--data", str(tiny_data),
+                     "--max-examples", n, "--out", str(out)]) == 2  # fmt: skip
+        assert not out.exists()
