@@ -348,7 +348,7 @@ def backend_accuracy(model: str, data: str | Path, *, max_examples: int) -> dict
     """One-step flow and mask figures of the two ends: no-motion (zero flow, one rigid body)
     and the oracle (the true flow, the true parts as masks)."""
     from se3net.data import PushDataset, evenly_spaced
-    from se3net.metrics import FlowStats, MaskStats
+    from se3net.metrics import FlowStats, MaskStats, true_flow
 
     ds = PushDataset(data, split="test", horizon=1)
     flow, masks = FlowStats(), MaskStats()
@@ -363,8 +363,8 @@ def backend_accuracy(model: str, data: str | Path, *, max_examples: int) -> dict
         else:
             pred = b["points"]
             m = torch.ones_like(b["part"])[:, None]
-        flow.add(pred, b["points"], target, b["target_valid"][:, 0])
-        masks.add(m.float(), b["part"], b["points"], target)
+        flow.add(pred, b["points"], target, b["target_valid"][:, 0], true_flow(b, 0))
+        masks.add(m.float(), b["part"], b["points"], target, true_flow(b, 0))
     return {
         "variant": model,
         "flow_mse_cm2": flow.mse_cm2,

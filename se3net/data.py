@@ -77,7 +77,7 @@ def paper_noise(name: str) -> NoiseConfig | None:
     return PAPER_NOISE[name]
 
 
-IMAGE_KEYS = ("points", "valid", "target", "target_valid", "part")
+IMAGE_KEYS = ("points", "valid", "target", "target_valid", "true_flow_m", "part")
 """the keys of a ``PushDataset`` batch that are images (the rest are per example)"""
 DEFLECTED_MIN_DEG = 20.0
 """an example is deflected (:meth:`PushDataset.deflected`) where an object's step turns more
@@ -120,6 +120,9 @@ class PushDataset(Dataset):
         which a rollout integrates the later steps' (``se3net.rollout``);
         ``target`` (h,3,H,W) float32, where each input point is after 1..h steps;
         ``target_valid`` (h,H,W) bool, input points still visible after 1..h steps;
+        ``true_flow_m`` (h,H,W) float32, how far each input point truly moves in 1..h steps,
+        from the noise-free cloud and targets: which points move does not depend on the
+        noise (``se3net.metrics.moving_points``);
         ``part`` (H,W) int64, true segmentation (-1 none, 0 static, 1 pusher, 2+ objects),
         for evaluation only; ``episode``, ``t`` ints.
 
@@ -283,6 +286,7 @@ class PushDataset(Dataset):
         target_valid = torch.stack(
             [self._visible(targets[:, k - 1], part, e, t + k) for k in range(1, h + 1)], 1
         )
+        true_flow = (targets - points[:, None]).norm(dim=2)  # before the noise
         if self.noise is not None:
             rngs = [np.random.default_rng([self.seed, self.epoch, int(i)]) for i in idx]
             points, targets, target_valid = apply_noise(
@@ -304,6 +308,7 @@ class PushDataset(Dataset):
             "state": torch.from_numpy(state).float().to(self.device),
             "target": targets,
             "target_valid": target_valid,
+            "true_flow_m": true_flow,
             "part": part,
             "episode": torch.from_numpy(self.episode_index[e]).to(self.device),
             "t": torch.from_numpy(t).to(self.device),

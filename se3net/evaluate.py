@@ -19,7 +19,7 @@ import torch
 from scenarios import InputError
 from se3net.checkpoint import DEFAULT_MODEL, load_checkpoint, model_config
 from se3net.data import PushDataset, evenly_spaced, paper_noise, subsample_batch
-from se3net.metrics import FlowStats, MaskStats
+from se3net.metrics import FlowStats, MaskStats, true_flow
 from se3net.rollout import check_feedback, reprojection, rollout
 from sim.shards import atomic_write_bytes, portable_path
 
@@ -121,9 +121,10 @@ def evaluate_checkpoint(
     for s in range(0, len(idx), batch):
         b = {k: v.to(device) for k, v in one.batch(idx[s : s + batch]).items()}
         pred = model(b["points"], b["u"][:, 0], b["valid"])
-        flow.add(pred.points, b["points"], b["target"][:, 0], b["target_valid"][:, 0])
+        truth = true_flow(b, 0)
+        flow.add(pred.points, b["points"], b["target"][:, 0], b["target_valid"][:, 0], truth)
         if pred.masks is not None:
-            masks.add(pred.masks, b["part"], b["points"], b["target"][:, 0])
+            masks.add(pred.masks, b["part"], b["points"], b["target"][:, 0], truth)
     multi = PushDataset(data, split=split, horizon=MULTI_STEPS, **reading)
     dt = multi.scenario.action.dt_control_s
     reproject = reprojection(feedback, multi.scenario.camera, stride)
@@ -136,7 +137,8 @@ def evaluate_checkpoint(
             model, b["points"], b["valid"], b["actions"], b["state"], dt, reproject=reproject
         )
         for k, x in enumerate(clouds):
-            steps[k].add(x, b["points"], b["target"][:, k], b["target_valid"][:, k])
+            steps[k].add(x, b["points"], b["target"][:, k], b["target_valid"][:, k],
+                         true_flow(b, k))  # fmt: skip
     is_se3 = masks.n_points > 0
     return EvalResult(
         name=name or checkpoint_name(path),

@@ -16,10 +16,26 @@ from sim.dataset import MOVED_M, NONZERO_FLOW_M
 
 
 def moving_points(
-    points: torch.Tensor, target: torch.Tensor, target_valid: torch.Tensor
+    points: torch.Tensor,
+    target: torch.Tensor,
+    target_valid: torch.Tensor,
+    true_flow_m: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """(B,H,W) bool: points whose true flow is non-zero and whose target is visible."""
-    return target_valid & ((target - points).norm(dim=1) > NONZERO_FLOW_M)
+    """(B,H,W) bool: points whose true flow is non-zero and whose target is visible.
+
+    ``true_flow_m`` (B,H,W): how far each point truly moves, from the noise-free data (a
+    batch's ``true_flow_m``); without it, the flow from ``points`` to ``target``. Under the
+    paper's noise the two differ: noisy points and targets differ nearly everywhere, so the
+    noisy flow would count nearly every point as moving."""
+    flow = (target - points).norm(dim=1) if true_flow_m is None else true_flow_m
+    return target_valid & (flow > NONZERO_FLOW_M)
+
+
+def true_flow(b: dict[str, torch.Tensor], h: int) -> torch.Tensor | None:
+    """A batch's noise-free flow of step h (``PushDataset``'s ``true_flow_m``), which decides
+    which points move; None for a batch made without it (the flow of its targets decides)."""
+    flow = b.get("true_flow_m")
+    return None if flow is None else flow[:, h]
 
 
 LOSSES = ("moving", "split")
@@ -33,6 +49,7 @@ def point_loss(
     points: torch.Tensor,
     *,
     loss: str = "moving",
+    true_flow_m: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Training loss (cm^2), on the squared error of predicted vs target points over visible
     targets.
@@ -44,7 +61,7 @@ def point_loss(
     plus the mean over static ones, each normalised by its own count.
     """
     sq = ((pred - target) ** 2).sum(1) * target_valid
-    moving = moving_points(points, target, target_valid)
+    moving = moving_points(points, target, target_valid, true_flow_m)
     if loss == "moving":
         return 1e4 * sq.sum() / moving.sum().clamp_min(1)
     static = target_valid & ~moving
@@ -68,8 +85,9 @@ class FlowStats:
         points: torch.Tensor,
         target: torch.Tensor,
         target_valid: torch.Tensor,
+        true_flow_m: torch.Tensor | None = None,
     ) -> None:
-        m = moving_points(points, target, target_valid)
+        m = moving_points(points, target, target_valid, true_flow_m)
         self.sq_err += float(((pred - target) ** 2).sum(1)[m].sum())
         self.sq_flow += float(((target - points) ** 2).sum(1)[m].sum())
         self.n += int(m.sum())
@@ -103,9 +121,15 @@ class MaskStats:
     n_bodies: int = 0
 
     def add(
-        self, masks: torch.Tensor, part: torch.Tensor, points: torch.Tensor, target: torch.Tensor
+        self,
+        masks: torch.Tensor,
+        part: torch.Tensor,
+        points: torch.Tensor,
+        target: torch.Tensor,
+        true_flow_m: torch.Tensor | None = None,
     ) -> None:
-        flow = (target - points).norm(dim=1)
+        """``true_flow_m``: which bodies move, from the noise-free data (``moving_points``)."""
+        flow = (target - points).norm(dim=1) if true_flow_m is None else true_flow_m
         label = masks.argmax(1)
         max_w = masks.max(1).values
         k = masks.shape[1]

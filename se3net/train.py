@@ -35,7 +35,7 @@ from se3net.checkpoint import manifest_hash, read_checkpoint, save_checkpoint
 from se3net.data import PushDataset, paper_noise
 from se3net.device import check_device
 from se3net.distributed import Ranks, broadcast, join, leave, mean_over_ranks, rank_device, shard
-from se3net.metrics import LOSSES, FlowStats, point_loss
+from se3net.metrics import LOSSES, FlowStats, point_loss, true_flow
 from se3net.model import ModelConfig, build_model, sharpening
 from se3net.rollout import Reprojection, check_feedback, reprojection, rollout
 from sim.shards import DataError, atomic_write_bytes, portable_path
@@ -181,8 +181,9 @@ def rollout_loss(
     total = 0.0
     for h, x in enumerate(clouds):
         total = total + point_loss(
-            x, b["target"][:, h], b["target_valid"][:, h], b["points"], loss=loss
-        )
+            x, b["target"][:, h], b["target_valid"][:, h], b["points"], loss=loss,
+            true_flow_m=true_flow(b, h),
+        )  # fmt: skip
     return total / steps
 
 
@@ -256,12 +257,13 @@ def validate(
         b = {k: v.to(device) for k, v in ds.batch(indices[s : s + batch]).items()}
         pred = model(b["points"], b["u"][:, 0], b["valid"]).points
         loss_sum += float(
-            point_loss(pred, b["target"][:, 0], b["target_valid"][:, 0], b["points"], loss=loss)
-        ) * len(pred)
+            point_loss(pred, b["target"][:, 0], b["target_valid"][:, 0], b["points"], loss=loss,
+                       true_flow_m=true_flow(b, 0))
+        ) * len(pred)  # fmt: skip
         rolled = rollout_loss(model, b, rollout_steps, dt, loss=loss, reproject=reproject)
         rollout_sum += float(rolled) * len(pred)
         n += len(pred)
-        stats.add(pred, b["points"], b["target"][:, 0], b["target_valid"][:, 0])
+        stats.add(pred, b["points"], b["target"][:, 0], b["target_valid"][:, 0], true_flow(b, 0))
     model.train()
     return {
         "val_loss": loss_sum / n,

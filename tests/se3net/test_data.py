@@ -243,3 +243,39 @@ def test_a_batch_assembled_on_the_gpu_is_the_cpus(root):
     for k, v in cpu.items():
         assert gpu[k].device.type == "cuda"
         torch.testing.assert_close(gpu[k].cpu(), v, atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("noise", ["depth", "assoc-9"])
+def test_under_noise_the_moving_points_are_the_ones_that_truly_move(root, noise):
+    """The paper's metric averages over the points whose true flow is non-zero. Under depth
+    noise nearly every noisy point differs from its noisy target, so judged from them nearly
+    every point would move; judged from the batch's noise-free flow, the moving points are the
+    clean data's (among those whose target stays visible), and the no-motion baseline and the
+    loss are taken over them."""
+    from se3net.metrics import FlowStats, moving_points, point_loss, true_flow
+
+    idx = list(range(0, len(PushDataset(root, split="train")), 3))
+    clean = PushDataset(root, split="train").batch(idx)
+    noisy = PushDataset(root, split="train", noise=PAPER_NOISE[noise]).batch(idx)
+    assert torch.equal(noisy["true_flow_m"], clean["true_flow_m"])
+
+    def moving(b, truth):
+        return moving_points(b["points"], b["target"][:, 0], b["target_valid"][:, 0], truth)
+
+    truly = moving(clean, true_flow(clean, 0))
+    assert torch.equal(truly, moving(clean, None))  # without noise the two agree
+    judged = moving(noisy, true_flow(noisy, 0))
+    seen_or_not = {**clean, "target_valid": torch.ones_like(clean["target_valid"])}
+    assert not (judged & ~moving(seen_or_not, None)).any()  # every one of them truly moves
+    assert judged.sum() >= 0.9 * truly.sum() > 0
+    if noise == "depth":
+        assert moving(noisy, None).sum() > 5 * truly.sum()  # what the noisy flow would say
+    stats = FlowStats()
+    stats.add(noisy["points"], noisy["points"], noisy["target"][:, 0],
+              noisy["target_valid"][:, 0], true_flow(noisy, 0))  # fmt: skip
+    assert stats.n == judged.sum()
+    # a prediction of the noisy targets on the moving points costs nothing, whatever the rest
+    off = noisy["target"][:, 0] + 0.05 * (~judged)[:, None]
+    loss = point_loss(off, noisy["target"][:, 0], judged, noisy["points"],
+                      true_flow_m=true_flow(noisy, 0))  # fmt: skip
+    assert float(loss) == 0.0
