@@ -52,7 +52,8 @@ HIST_BIN_M, HIST_BINS = 2.5e-4, 400
 
 @dataclass(frozen=True)
 class DataConfig:
-    """What to generate; everything but ``episodes`` identifies a dataset folder."""
+    """What to generate; all of it identifies a dataset folder (``identity``: a folder resumes
+    only with the arguments that made it)."""
 
     scenario: str
     """scenario name or TOML path"""

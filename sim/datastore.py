@@ -1,7 +1,8 @@
 """Reading the dataset folders that ``sim.dataset`` writes: manifest, splits, episodes, stats.
 
 Episodes are split into train/val/test by index (of every 20 episodes, 18 train, 1 val,
-1 test), so no episode is ever in two splits, and the split survives adding episodes.
+1 test), so no episode is ever in two splits, and an episode's split does not depend on how
+many episodes the folder holds.
 """
 
 from __future__ import annotations
