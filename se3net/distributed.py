@@ -85,12 +85,20 @@ def join(device: str, batch: int) -> Ranks:
     return ranks
 
 
-def leave(ranks: Ranks) -> None:
-    """Leave the process group joined by :func:`join` (nothing for one process)."""
+def leave(ranks: Ranks, *, finished: bool) -> None:
+    """Leave the process group joined by :func:`join` (nothing for one process).
+
+    ``finished``: every process got to the end of its work. They then wait for each other
+    before the group goes: a process that tore the group down while another still wrote its
+    checkpoint made that one abort at exit (gloo: "terminate called without an active
+    exception"), so torchrun failed a run that had finished. After an error there is no
+    waiting (the others may never get there)."""
     if ranks.world > 1:
         import torch.distributed as dist
 
         if dist.is_initialized():
+            if finished:
+                dist.barrier()
             dist.destroy_process_group()
 
 

@@ -327,10 +327,13 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
             processes, or a resume with another number of processes than the run had.
     """
     ranks = join(cfg.device, cfg.batch)
+    finished = False
     try:
-        return _train(cfg, ranks, resume=resume, progress=progress and ranks.main)
+        result = _train(cfg, ranks, resume=resume, progress=progress and ranks.main)
+        finished = True
+        return result
     finally:
-        leave(ranks)
+        leave(ranks, finished=finished)
 
 
 def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> dict[str, Any]:
