@@ -125,6 +125,22 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     return blob
 
 
+def refuse_trained_on(path: str | Path, manifest: dict[str, Any], data: str | Path) -> None:
+    """For a measurement on every episode of ``data`` (``--split all``, meant for a dataset
+    held out from training): refuse a checkpoint trained on it, whose figures would be taken
+    on its own training episodes.
+
+    Raises:
+        CheckpointError: the checkpoint's training data include ``data``.
+    """
+    trained = str(read_checkpoint(path).get("data_hash", "")).split("+")
+    if manifest_hash(manifest) in trained:
+        raise CheckpointError(
+            f"--split all: {path} was trained on {data}, so all its episodes include the ones it "
+            "learnt from; use --split test, or a dataset made to be held out"
+        )
+
+
 def model_config(path: str | Path) -> ModelConfig:
     """The network configuration a checkpoint holds (say, to read its data at its stride)."""
     return _config_of(read_checkpoint(path), path)

@@ -366,6 +366,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
 def _cmd_deflection(args: argparse.Namespace) -> int:
     from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK
     from planner.study import BACKEND_MODELS, parse_models, push_deflection, study_dynamics
+    from se3net.checkpoint import refuse_trained_on
     from sim.datastore import read_manifest, scenario_of
     from sim.shards import atomic_write_json
 
@@ -375,7 +376,11 @@ def _cmd_deflection(args: argparse.Namespace) -> int:
     for _, model in models:
         if model in BACKEND_MODELS:
             raise InputError(f"--models: {model} has no deflection to measure; name checkpoints")
-    scenario = scenario_of(read_manifest(args.data))
+    manifest = read_manifest(args.data)
+    if args.split == "all":
+        for _, model in models:
+            refuse_trained_on(model, manifest, args.data)
+    scenario = scenario_of(manifest)
     dynamics = [study_dynamics(m, scenario, PLAN_FEEDBACK, CONTACT_MARGIN_M) for _, m in models]
     tables = push_deflection(dynamics, args.data, max_windows=args.max_windows, split=args.split)
     lines = [

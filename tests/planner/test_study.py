@@ -238,6 +238,18 @@ def test_deflection_refuses_a_backend_without_a_model(study_data, capsys):
     assert "--max-windows must be positive, got 0" in capsys.readouterr().err
 
 
+def test_deflection_on_all_episodes_refuses_a_model_trained_on_them(study_data, tmp_path, capsys):
+    from se3push.cli import main
+
+    run = tmp_path / "run"
+    train(TrainConfig(data=str(study_data), out=str(run), iters=2, batch=4, eval_every=2,
+                      val_examples=8, k=3), progress=False)  # fmt: skip
+    args = ["deflection", "--data", str(study_data), "--models", str(run / "best.pt")]
+    assert main([*args, "--split", "all", "--json", str(tmp_path / "d.json")]) == 2
+    assert "was trained on" in capsys.readouterr().err
+    assert not (tmp_path / "d.json").exists()
+
+
 def test_push_deflection_leaves_predicted_stillness_out_of_the_angles(study_data):
     """A model that predicts no motion has no direction to compare: every window counts as
     predicted still, the angles are None (not the 90 degrees a zero vector would give), and

@@ -27,13 +27,24 @@ def test_eval_records_a_checkpoint_under_the_cwd_relative_to_it(work, tiny_data,
     assert str(work) not in (work / "eval" / "eval.json").read_text()
 
 
-def test_eval_on_all_episodes_uses_every_episode(work, tiny_data, tmp_path):
+@pytest.fixture(scope="module")
+def held_out(tmp_path_factory):
+    """Tiny data of another seed, which the tiny model never saw."""
+    from sim.dataset import DataConfig, generate
+
+    root = tmp_path_factory.mktemp("held_out")
+    generate(DataConfig("tiny", episodes=21, steps_per_episode=8, episodes_per_shard=7, seed=1),
+             root, progress=False)  # fmt: skip
+    return root
+
+
+def test_eval_on_all_episodes_uses_every_episode(work, tiny_data, held_out, tmp_path):
     best = work / "runs" / "tiny" / "best.pt"
-    (test,) = evaluate([best], tiny_data, tmp_path / "test", max_examples=10_000)
-    (every,) = evaluate([best], tiny_data, tmp_path / "all", max_examples=10_000, split="all")
+    (test,) = evaluate([best], held_out, tmp_path / "test", max_examples=10_000)
+    (every,) = evaluate([best], held_out, tmp_path / "all", max_examples=10_000, split="all")
     assert (test.split, every.split) == ("test", "all")
-    assert test.examples == len(PushDataset(tiny_data, split="test"))
-    assert every.examples == len(PushDataset(tiny_data, split="all")) > 10 * test.examples
+    assert test.examples == len(PushDataset(held_out, split="test"))
+    assert every.examples == len(PushDataset(held_out, split="all")) > 10 * test.examples
     assert "All episodes of" in (tmp_path / "all" / "table.md").read_text()
     assert "Test split of" in (tmp_path / "test" / "table.md").read_text()
 
@@ -82,3 +93,29 @@ def test_eval_refuses_too_few_examples_to_score_before_writing_anything(work, ti
         assert main(["eval", "--checkpoints", best, "--data", str(tiny_data),
                      "--max-examples", n, "--out", str(out)]) == 2  # fmt: skip
         assert not out.exists()
+
+
+def test_the_no_motion_column_has_a_figure_for_each_models_points(work, tiny_data, tmp_path):
+    """Models that read every 2nd pixel score other points than those reading every pixel, so
+    the baseline they are compared with differs; the table gives both, not the first model's."""
+    cfg = TrainConfig(data=str(tiny_data), out=str(tmp_path / "s2"), iters=2, batch=4,
+                      eval_every=2, val_examples=8, k=3, stride=2)  # fmt: skip
+    train(cfg, progress=False)
+    paths = [work / "runs" / "tiny" / "best.pt", tmp_path / "s2" / "best.pt"]
+    every, second = evaluate(paths, tiny_data, tmp_path / "eval", max_examples=8)
+    assert (every.stride, second.stride) == (1, 2)
+    assert every.no_motion_mse != second.no_motion_mse
+    table = (tmp_path / "eval" / "table.md").read_text()
+    one_step = next(ln for ln in table.splitlines() if ln.startswith("| flow MSE (cm²), 1 step"))
+    assert one_step.endswith(f"| {every.no_motion_mse:.3f} / {second.no_motion_mse:.3f} |")
+    assert "(1, 2)" in table
+
+
+def test_eval_on_all_episodes_refuses_a_model_trained_on_them(work, tiny_data, tmp_path):
+    """Every episode of the model's own training data would score it on what it learnt from."""
+    from se3net.checkpoint import CheckpointError
+
+    best = work / "runs" / "tiny" / "best.pt"
+    with pytest.raises(CheckpointError, match="was trained on"):
+        evaluate([best], tiny_data, tmp_path / "eval", max_examples=8, split="all")
+    assert not (tmp_path / "eval" / "eval.json").exists()
