@@ -296,7 +296,8 @@ def _compared(meta: dict) -> dict:
     (``COST_BEFORE_OPTIONS``), and the disturbance weight not at all where the pushed object is
     always alone; runs from before ``feedback`` fed predicted clouds back on the grid and those
     from before the contact gate had none, those from before the motion gain no gain, and the
-    simulator backends have none of them."""
+    simulator backends have none of them. ``planning.seed`` does not count: each trial seeds its
+    planner with its world's reset seed."""
     out = {k: v for k, v in meta.items() if k != "n"}
     out |= {k: meta.get(k, before) for k, before in ROLLOUT_BEFORE_OPTIONS.items()}
     if meta.get("model") in ("oracle", "no-motion"):
@@ -309,7 +310,9 @@ def _compared(meta: dict) -> dict:
     if isinstance(meta.get("planning"), dict):
         mine = meta["planner"]
         out["planning"] = {
-            k: v for k, v in meta["planning"].items() if ONE_PLANNER_SETTINGS.get(k, mine) == mine
+            k: v
+            for k, v in meta["planning"].items()
+            if ONE_PLANNER_SETTINGS.get(k, mine) == mine and k != "seed"
         }
     return out
 

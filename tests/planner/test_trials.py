@@ -152,6 +152,9 @@ def test_a_folder_of_other_planning_settings_is_refused(tmp_path):
     (tmp_path / "config.json").write_text(json.dumps(meta))
     grad = PlannerConfig(grad_starts=2, trust_radius=0.1, temperature=0.1)
     assert run_trials(replace(cfg, n=3, planning=grad), tmp_path, progress=False)["trials"] == 3
+    # nor does the planner's seed, which each trial replaces by its world's
+    reseeded = PlannerConfig(seed=5)
+    assert run_trials(replace(cfg, n=4, planning=reseeded), tmp_path, progress=False)["trials"] == 4
     run_trials(replace(cfg, planner="grad"), tmp_path / "g", progress=False)
     with pytest.raises(InputError, match="planning.grad_starts: folder has 4, this run asks for 2"):
         run_trials(replace(cfg, planner="grad", planning=grad), tmp_path / "g", progress=False)
