@@ -78,9 +78,15 @@ class PlannerConfig:
         return max(2 * self.elites, round(self.samples / self.shrink**iteration))
 
     def __post_init__(self) -> None:
-        for name in ("horizon", "samples", "iterations", "elites", "grad_steps", "grad_starts"):
+        positive = ("horizon", "samples", "iterations", "elites", "grad_steps", "grad_starts",
+                    "grad_init_samples")  # fmt: skip
+        for name in positive:
             if getattr(self, name) < 1:
                 raise InputError(f"{name} must be a positive integer, got {getattr(self, name)}")
+        if self.elites < 2:  # CEM refits an SD to them
+            raise InputError(
+                f"elites must be at least 2 (CEM fits a spread to them), got {self.elites}"
+            )
         if self.elites > self.samples:
             raise InputError(f"elites ({self.elites}) cannot exceed samples ({self.samples})")
         if not self.shrink >= 1.0:

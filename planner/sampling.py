@@ -68,9 +68,16 @@ class MPPIPlanner(Planner):
     name = "mppi"
 
     def _weights(self, cost: torch.Tensor) -> torch.Tensor:
-        """Softmin weights (K,) of the costs (K,), normalised by a robust scale."""
-        scale = (cost.median() - cost.min()).clamp_min(1e-9)
-        return torch.softmax(-(cost - cost.min()) / (scale * self.cfg.temperature), 0)
+        """Softmin weights (K,) of the costs (K,), normalised by a robust scale. A sample whose
+        cost is not finite (NaN) gets none; with none finite, the nominal (sample 0) keeps
+        all, so one bad sample does not turn the nominal and every later sample into NaN."""
+        finite = torch.isfinite(cost)
+        if not finite.any():
+            return (torch.arange(len(cost), device=cost.device) == 0).to(cost.dtype)
+        low, mid = cost[finite].min(), cost[finite].median()
+        scale = (mid - low).clamp_min(1e-9)
+        cost = torch.where(finite, cost, torch.full_like(cost, math.inf))
+        return torch.softmax(-(cost - low) / (scale * self.cfg.temperature), 0)
 
     def _optimise(self, state: PlanState, U0: torch.Tensor) -> tuple[Best, int]:
         c = self.cfg

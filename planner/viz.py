@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from planner.base import PlanInfo, PlannerConfig
+from scenarios import InputError
 from sim.shards import atomic_write_bytes
 from sim.world import Observation, PushWorld
 
@@ -87,6 +88,8 @@ class MeshcatVisualiser:
 
     def __init__(self, *, live: bool = False, record: str | Path | None = None):
         self.live, self.record = live, Path(record) if record else None
+        if self.record is not None and self.record.is_dir():  # found before the push, not after
+            raise InputError(f"--record {record} is a folder; give the HTML file's path")
         self.frames = 0
         self.vis: Any = None
 
@@ -95,12 +98,23 @@ class MeshcatVisualiser:
               model: torch.nn.Module | None = None) -> None:  # fmt: skip
         import meshcat
         import meshcat.animation
-        import meshcat.geometry as g
 
         self.vis = meshcat.Visualizer()  # starts meshcat's server on 127.0.0.1 and prints its URL
-        self.anim = meshcat.animation.Animation(
-            default_framerate=1 / world.scenario.action.dt_control_s
-        )
+        try:
+            self.anim = meshcat.animation.Animation(
+                default_framerate=1 / world.scenario.action.dt_control_s
+            )
+            self._scene(world, obs, goal, object_index, horizon, model)
+        except BaseException:
+            self._stop_server()  # the loop's finish() never runs for a start that failed
+            self.vis = None
+            raise
+
+    def _scene(self, world: PushWorld, obs: Observation, goal: np.ndarray, object_index: int,
+               horizon: int, model: torch.nn.Module | None) -> None:  # fmt: skip
+        """The table, pusher, objects, goal, predicted ghosts and cloud, and the view."""
+        import meshcat.geometry as g
+
         self.world, self.index, self.horizon = world, object_index, horizon
         t = world.scenario.table
         self.vis["table"].set_object(
@@ -175,13 +189,14 @@ class MeshcatVisualiser:
             from se3net.data import subsample
 
             s = model.cfg.stride  # a planning-resolution network sees every s-th pixel
+            dev = next(model.parameters()).device  # the planner's device (--device)
             with torch.no_grad():
-                pts = subsample(torch.from_numpy(obs.points_cam).float(), s)[None]
-                valid = subsample(torch.from_numpy(obs.valid), s)[None]
-                u = torch.tensor([[0.0, 0.0, *obs.pusher_xy_m]], dtype=torch.float32)
+                pts = subsample(torch.from_numpy(obs.points_cam).float(), s)[None].to(dev)
+                valid = subsample(torch.from_numpy(obs.valid), s)[None].to(dev)
+                u = torch.tensor([[0.0, 0.0, *obs.pusher_xy_m]], dtype=torch.float32, device=dev)
                 masks = model(pts, u, valid).masks
             # each camera pixel coloured by the network pixel it falls in
-            labels = masks[0].argmax(0).numpy().repeat(s, 0).repeat(s, 1)
+            labels = masks[0].argmax(0).cpu().numpy().repeat(s, 0).repeat(s, 1)
         T = self.world.camera.T_world_cam
         p = (T[:3, :3] @ obs.points_cam.reshape(3, -1) + T[:3, 3:])[:, obs.valid.ravel()]
         colours = COLOURS[labels.ravel()[obs.valid.ravel()] % len(COLOURS)].T
@@ -222,5 +237,9 @@ class MeshcatVisualiser:
             atomic_write_bytes(self.record, self.vis.static_html().encode())
         if self.live and sys.stdin.isatty():
             input(f"the push is shown at {self.vis.url()}; press Enter to close the visualiser ")
-        self.vis.window.server_proc.kill()  # never leave meshcat's server behind
+        self._stop_server()
+
+    def _stop_server(self) -> None:
+        """Never leave meshcat's server behind."""
+        self.vis.window.server_proc.kill()
         self.vis.window.server_proc.wait()

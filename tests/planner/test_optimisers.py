@@ -301,10 +301,36 @@ def test_a_nan_cost_never_becomes_the_plan(name):
     assert np.all(np.isfinite(a)) and np.isfinite(info.cost)
 
 
+class _OneNaN(CarriedDisk):
+    """Predicts a NaN pose for one sequence of the first batch, and records every batch."""
+
+    def __init__(self, dt):
+        super().__init__(dt)
+        self.batches = []
+
+    def rollout(self, state, actions, *, clouds=False):
+        r = super().rollout(state, actions, clouds=clouds)
+        self.batches.append(actions.clone())
+        if len(self.batches) == 1:
+            poses = r.object_poses.clone()
+            poses[1] = float("nan")
+            r = type(r)(poses, r.pusher_xy)
+        return r
+
+
+@pytest.mark.parametrize("name", ["cem", "mppi"])
+def test_one_nan_cost_does_not_spoil_the_later_samples(name):
+    cost = PushCost(SCENARIO, torch.tensor((0.08, 0.03, 0.0)), TOY_COST)
+    dynamics = _OneNaN(DT)
+    make_planner(name, dynamics, cost, SCENARIO, PlannerConfig(samples=16)).plan(toy_state())
+    assert len(dynamics.batches) >= 3
+    assert all(torch.isfinite(b).all() for b in dynamics.batches)
+
+
 @pytest.mark.parametrize(
     ("field", "value"),
     [("colour", 1.0), ("colour", -0.1), ("warm_std", 0.0), ("temperature", 0.0), ("shrink", 0.5),
-     ("keep_elites", 1.5), ("init_std", -1.0)],
+     ("keep_elites", 1.5), ("init_std", -1.0), ("elites", 1), ("grad_init_samples", 0)],
 )  # fmt: skip
 def test_unusable_planner_settings_are_refused(field, value):
     from scenarios import InputError

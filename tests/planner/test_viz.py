@@ -63,6 +63,29 @@ def test_recorded_html_holds_one_animation_frame_per_step(tmp_path):
             assert len(track["keys"]) == result.steps, path
 
 
+def test_a_start_that_fails_leaves_no_meshcat_server_behind(monkeypatch):
+    import meshcat
+
+    started = []
+
+    class Recorded(meshcat.Visualizer):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            started.append(self)
+
+    def broken(self, obs, model):
+        raise RuntimeError("the cloud could not be drawn")
+
+    monkeypatch.setattr(meshcat, "Visualizer", Recorded)
+    monkeypatch.setattr(MeshcatVisualiser, "_cloud", broken)
+    world = PushWorld(load_scenario("tiny"))
+    obs = world.reset(0)
+    with pytest.raises(RuntimeError, match="could not be drawn"):
+        MeshcatVisualiser().start(world, obs, obs.object_poses[0])
+    (vis,) = started
+    assert vis.window.server_proc.poll() is not None  # the server process has ended
+
+
 def test_plan_push_record_flag(tmp_path, capsys):
     obs = PushWorld(load_scenario("tiny")).reset(0)
     x, y, yaw = obs.object_poses[0]
@@ -73,6 +96,11 @@ def test_plan_push_record_flag(tmp_path, capsys):
     assert plan_push_main(args) == 1
     assert f"wrote {out} (2 frames)" in capsys.readouterr().out
     assert out.stat().st_size > 100_000
+    # a folder is refused before the push, not after it
+    args[-1] = str(tmp_path)
+    assert plan_push_main(args) == 2
+    err = capsys.readouterr()
+    assert "is a folder; give the HTML file's path" in err.err and "step" not in err.out
 
 
 def test_the_shipped_planning_resolution_model_colours_the_cloud_by_its_masks(tmp_path):
