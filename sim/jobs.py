@@ -132,13 +132,15 @@ def _ray_results(
                 raise InputError(
                     f"--address {backend.address}: no Ray cluster there ({err})"
                 ) from None
+    pending: list[Any] = []
     try:
         remote = ray.remote(num_cpus=1, max_retries=0)(_ray_job)
         cwd = os.getcwd()
         pending = [remote.remote(fn, args, backend.threads, cwd) for args in jobs]
         if ordered:
-            for ref in pending:
-                yield ray.get(ref)
+            while pending:
+                yield ray.get(pending[0])
+                pending.pop(0)
             return
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
@@ -146,6 +148,9 @@ def _ray_results(
     finally:
         if started_here:
             ray.shutdown()
+        else:  # a cluster of someone else's: the jobs nobody will read must not run on
+            for ref in pending:
+                ray.cancel(ref)
 
 
 def run_jobs(
@@ -165,10 +170,15 @@ def run_jobs(
                 yield fn(*args)
     else:
         ctx = multiprocessing.get_context("fork")
-        with ProcessPoolExecutor(
+        pool = ProcessPoolExecutor(
             max_workers=backend.workers, mp_context=ctx, initializer=_init_worker,
             initargs=(backend.threads,),
-        ) as pool:  # fmt: skip
+        )  # fmt: skip
+        try:
             futures = [pool.submit(fn, *args) for args in jobs]
             for fut in futures if ordered else as_completed(futures):
                 yield fut.result()
+        finally:
+            # after an error (or a consumer that stopped reading), the jobs not yet started
+            # are dropped, so the error comes now, not after every other job has run
+            pool.shutdown(wait=True, cancel_futures=True)

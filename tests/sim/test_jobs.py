@@ -24,6 +24,24 @@ def test_the_local_pool_gives_every_result_in_order_when_asked():
     assert {p for _, p in run_jobs(_square_and_pid, jobs, Backend())} == {os.getpid()}
 
 
+def _mark_or_fail(x: int, folder: str) -> int:
+    import time
+
+    if x == 1:
+        raise ValueError("job 1 failed")
+    open(os.path.join(folder, str(x)), "w").close()
+    time.sleep(0.2)
+    return x
+
+
+def test_a_failing_job_stops_the_pool_without_running_the_rest(tmp_path):
+    jobs = [(x, str(tmp_path)) for x in range(16)]
+    with pytest.raises(ValueError, match="job 1 failed"):
+        list(run_jobs(_mark_or_fail, jobs, Backend("local", 2), ordered=True))
+    ran = len(list(tmp_path.iterdir()))
+    assert 1 <= ran <= 6  # those already handed to the workers; not all 15
+
+
 def test_bad_backends_are_refused_with_what_to_do(monkeypatch, capsys):
     with pytest.raises(InputError, match="--backend must be one of local, ray"):
         Backend("dask")
