@@ -199,6 +199,11 @@ class Planner:
         iterations run, from the warm start U0 (H,2)."""
         raise NotImplementedError
 
+    def executed(self, action: np.ndarray) -> None:
+        """The action the world ran, where it is not the plan's first (noise was added to it):
+        the next plan's smoothness term is taken from it."""
+        self.last_action = torch.as_tensor(action, dtype=torch.float32).clone()
+
     def plan(self, state: PlanState) -> tuple[np.ndarray, PlanInfo]:
         """The action (2,) to apply now, and the plan it came from."""
         t0 = time.perf_counter()

@@ -261,6 +261,7 @@ def run_push(
             if cfg.action_noise > 0:
                 action = np.clip(action + cfg.action_noise * bound * noise.standard_normal(2),
                                  -bound, bound)  # fmt: skip
+                planner.executed(action)
             obs = world.step(action)
             if on_transition is not None:
                 on_transition(world, obs, action)

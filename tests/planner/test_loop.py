@@ -130,6 +130,24 @@ def test_the_planning_and_cost_settings_reach_the_planner(monkeypatch):
     assert seen == [(1.0, 3, 32, 5), (0.25, 2, 9, 5)]  # the planner's seed is the push's
 
 
+def test_the_next_plan_is_smoothed_from_the_noisy_action_the_world_ran(monkeypatch):
+    import planner.loop as loop
+
+    planners = []
+    real = loop.make_planner
+
+    def spy(*args):
+        planners.append(real(*args))
+        return planners[-1]
+
+    monkeypatch.setattr(loop, "make_planner", spy)
+    cfg = PushConfig(goal=_nearby_goal(), scenario="tiny", model="no-motion", max_steps=2,
+                     action_noise=0.3, planning=PlannerConfig(samples=8, iterations=1))  # fmt: skip
+    result = run_push(cfg)
+    ran = np.array(result.records[-1].action, dtype=np.float32)
+    np.testing.assert_array_equal(planners[0].last_action.numpy(), ran)
+
+
 @pytest.mark.parametrize("steps", ["0", "-3"])
 def test_plan_push_refuses_a_step_budget_below_one(steps, capsys):
     code = plan_push_main(["--goal", "0.1", "0.0", "0", "--max-steps", steps])
