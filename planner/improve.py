@@ -145,17 +145,25 @@ def record_trial(
     episodes: list[dict[str, np.ndarray]] = []
     current: dict[str, Any] = {}
 
+    def start(world, obs) -> None:
+        # the world counts QP failures since its reset: each episode keeps its own share
+        current.update(world=world, rec=EpisodeRecorder(world, steps_per_episode, obs),
+                       qp_before=world.qp_failures)  # fmt: skip
+
+    def finish() -> None:
+        episodes.append(current["rec"].finish(current["world"].qp_failures - current["qp_before"]))
+
     def on_transition(world, obs, action) -> None:
         if action is None:
-            current.update(world=world, rec=EpisodeRecorder(world, steps_per_episode, obs))
+            start(world, obs)
             return
         if obs.done:  # the frame where the episode ended is dropped, as exploration data does
             return
         rec = current["rec"]
         rec.step(action, PLANNER_MODE, obs)
         if rec.full:
-            episodes.append(rec.finish(world.qp_failures))
-            current["rec"] = EpisodeRecorder(world, steps_per_episode, obs)
+            finish()
+            start(world, obs)
 
     push = PushConfig(
         goal=tuple(trial["goal"]), scenario=scenario, model=model, planner=cfg.planner,
@@ -166,7 +174,7 @@ def record_trial(
     )  # fmt: skip
     result = run_push(push, on_transition=on_transition)
     if current["rec"].length > 0:
-        episodes.append(current["rec"].finish(current["world"].qp_failures))
+        finish()
     return {"reset_seed": trial["reset_seed"], "episodes": episodes, **result.summary()}
 
 

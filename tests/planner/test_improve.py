@@ -219,3 +219,29 @@ def test_finetuning_keeps_the_starting_network_and_its_loss(tiny_data, tmp_path)
     assert blob["model"]["controls"] == "film" and blob["model"]["valid_channel"] is True
     run = read_checkpoint(tmp_path / "ft" / "last.pt")["train_state"]["config"]
     assert run["loss"] == "split" and run["init"] == str(start / "best.pt")
+
+
+def test_each_planner_episode_counts_only_its_own_qp_failures(tiny_data, start_model, monkeypatch):
+    """The world counts the controller's QP failures since its reset; a push cut into several
+    episodes gives each the failures of its own steps, so the dataset's total is the push's."""
+
+    class _Result:
+        def summary(self):
+            return {}
+
+    def fake_push(push, *, on_transition):
+        world = PushWorld(scenarios.load_scenario("tiny"))
+        obs = world.reset(push.seed)
+        on_transition(world, obs, None)
+        for _ in range(5):
+            world.controller.failures += 1  # one failure in every step
+            action = np.zeros(len(world.layout.commands))
+            obs = world.step(action)
+            on_transition(world, obs, action)
+        return _Result()
+
+    monkeypatch.setattr(improve_mod, "run_push", fake_push)
+    cfg = _cfg(tiny_data, start_model)
+    rec = improve_mod.record_trial(cfg, "tiny", start_model, 0, 0, steps_per_episode=2)
+    counts = [int(ep["qp_failures"]) for ep in rec["episodes"]]
+    assert counts == [2, 2, 1]
