@@ -57,6 +57,12 @@ def rank_device(device: str, ranks: Ranks) -> str:
             f"--device {device} names one GPU for {ranks.world} processes; give --device cuda "
             "and each process takes the GPU of its local rank"
         )
+    gpus = torch.cuda.device_count()
+    if ranks.local_rank >= gpus:
+        raise InputError(
+            f"{ranks.world} processes but this machine has {gpus} GPU(s); start at most {gpus} "
+            "per machine (torchrun --nproc_per_node)"
+        )
     return f"cuda:{ranks.local_rank}"
 
 

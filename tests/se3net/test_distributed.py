@@ -88,6 +88,16 @@ def test_a_batch_that_does_not_split_over_the_processes_is_refused(monkeypatch):
         join("cpu", 3)
 
 
+def test_more_processes_on_a_machine_than_gpus_is_refused(monkeypatch):
+    from se3net.distributed import rank_device
+
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
+    assert rank_device("cuda", Ranks(rank=1, world=2, local_rank=1)) == "cuda:1"
+    with pytest.raises(InputError, match="4 processes but this machine has 2 GPU"):
+        rank_device("cuda", Ranks(rank=2, world=4, local_rank=2))
+    assert rank_device("cpu", Ranks(rank=2, world=4, local_rank=2)) == "cpu"
+
+
 def test_ddp_ranks_draw_their_own_shards_rank_0_writes_and_resume_is_exact(tiny_data, tmp_path):
     _run_ranks(_cfg(tiny_data, tmp_path / "a"), tmp_path / "a.log")
     notes = [json.loads(x) for x in (tmp_path / "a.log").read_text().splitlines()]
