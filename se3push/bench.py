@@ -250,6 +250,8 @@ def bench_planner(
     check_device(device)  # before anything is timed
     if model is not None and model_config(model).is_flow:
         raise InputError(f"--model {model} is a flow net; time it with --flow-model")
+    if flow_model is not None and not model_config(flow_model).is_flow:
+        raise InputError(f"--flow-model {flow_model} is not a flow net; time it with --model")
     scenario, world, state, goal = _bench_state(device)
     cfg = PlannerConfig()
     backends = {"se3net": model, "oracle": None, "no-motion": None}
@@ -452,7 +454,17 @@ BENCHES: dict[str, Callable[..., dict[str, float]]] = {
 
 
 def run_bench(what: str, *, repeats: int, json_path: str | None, **options: object) -> dict:
-    """Run one benchmark, print its table and optionally write its figures as JSON."""
+    """Run one benchmark, print its table and optionally write its figures as JSON (the
+    settings are checked, and the JSON's folder made, before anything is timed)."""
+    from scenarios import InputError
+    from sim.shards import atomic_write_bytes
+
+    if repeats < 1:
+        raise InputError(f"--repeats must be at least 1, got {repeats}")
+    if json_path:
+        if Path(json_path).is_dir():
+            raise InputError(f"--json {json_path} is a folder; give the JSON file's path")
+        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
     figures = BENCHES[what](repeats=repeats, **options)
     flat = {
         f"{name}[{key}]" if isinstance(value, dict) else name: v
@@ -469,5 +481,5 @@ def run_bench(what: str, *, repeats: int, json_path: str | None, **options: obje
         )
         print(f"  {name:<{width}}  {shown}")
     if json_path:
-        Path(json_path).write_text(json.dumps(figures, indent=2) + "\n")
+        atomic_write_bytes(Path(json_path), (json.dumps(figures, indent=2) + "\n").encode())
     return figures

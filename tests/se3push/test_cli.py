@@ -304,6 +304,16 @@ def test_a_device_this_machine_lacks_is_exit_code_2(
     assert message in capsys.readouterr().err
 
 
+def test_bench_refuses_bad_settings_before_timing_anything(tmp_path, capsys):
+    assert main(["bench", "world", "--repeats", "0"]) == 2
+    assert "--repeats must be at least 1, got 0" in capsys.readouterr().err
+    assert main(["bench", "world", "--repeats", "1", "--json", str(tmp_path)]) == 2
+    assert "is a folder" in capsys.readouterr().err
+    se3 = "default"  # an SE3-Net, not a flow net
+    assert main(["bench", "planner", "--repeats", "1", "--flow-model", se3]) == 2
+    assert "--flow-model default is not a flow net" in capsys.readouterr().err
+
+
 def test_bench_planner_writes_every_pair(tmp_path):
     path = tmp_path / "bench.json"
     assert main(["bench", "planner", "--repeats", "1", "--json", str(path)]) == 0
