@@ -5,7 +5,8 @@ Per step h of a rollout: the object's position error and symmetry-aware yaw erro
 (the terminal step weighted more than the running steps), a shaping term that draws the pusher
 to the object's far side from the goal (once behind it, only while the object is predicted not
 to move), penalties
-on action size and change, a penalty for the pusher leaving the workspace, and, with an
+on action size and change, a penalty for the pusher leaving the workspace, optionally one for
+the object going where the pusher could no longer get round it (``w_edge``), and, with an
 ensemble of models, a penalty on their disagreement (the planner keeps to what they agree on),
 and, among other objects, a penalty on their predicted displacement (it keeps them in place).
 
@@ -33,9 +34,9 @@ from sim.planar import wrap_angle
 SHAPING_FADES = ("behind", "everywhere")
 """where predicted motion may fade the shaping term (``CostConfig.shaping_fade``)"""
 
-COST_BEFORE_OPTIONS = {"w_disturb": 0.0, "shaping_fade": "everywhere"}
+COST_BEFORE_OPTIONS = {"w_disturb": 0.0, "shaping_fade": "everywhere", "w_edge": 0.0}
 """cost settings added later, as the records made before them had them (no disturbance term;
-the shaping term faded wherever the pusher was)"""
+the shaping term faded wherever the pusher was; no edge term)"""
 
 
 @dataclass(frozen=True)
@@ -83,6 +84,11 @@ class CostConfig:
     """weight of how far the other objects are predicted to be moved by the last step
     (scaled like the position error): the planner pushes one object among others and keeps
     the others where they are"""
+    w_edge: float = 0.0
+    """weight of how far the pushed object is predicted to be, at any step, beyond where the
+    pusher can still get round it inside the workspace (scaled like the position error): an
+    object pushed nearer the table's edge than its own radius and the pusher's can no longer
+    be pushed back"""
 
     def __post_init__(self) -> None:
         if self.shaping_fade not in SHAPING_FADES:
@@ -93,7 +99,8 @@ class CostConfig:
             if name == "shaping_fade":
                 continue
             if not (math.isfinite(value) and value >= 0):
-                flags = {"w_spread": "--spread-weight", "w_disturb": "--disturb-weight"}
+                flags = {"w_spread": "--spread-weight", "w_disturb": "--disturb-weight",
+                         "w_edge": "--edge-weight"}  # fmt: skip
                 what = flags.get(name, f"cost setting {name}")
                 raise InputError(f"{what} must be a finite number >= 0, got {value}")
         for name in ("pos_scale_m", "yaw_scale_rad", "shaping_scale_m", "moving_m"):
@@ -207,6 +214,10 @@ class PushCost:
         res.append(math.sqrt(c.w_smooth) * (actions - prev).flatten(1) / self.bound)
         out = torch.relu(rollout.pusher_xy.abs() - self.half.to(actions)) / 0.01
         res.append(math.sqrt(c.w_workspace) * out.flatten(1))
+        if c.w_edge > 0:
+            reach = self.half.to(actions) - state.footprint_radius_m - self.pusher_radius
+            beyond = torch.relu(rollout.object_poses[..., :2].abs() - reach) / c.pos_scale_m
+            res.append(math.sqrt(c.w_edge) * beyond.flatten(1))
         if rollout.spread is not None and c.w_spread > 0:
             res.append(math.sqrt(c.w_spread) * rollout.spread / c.pos_scale_m)
         if rollout.other_poses is not None and c.w_disturb > 0 and state.n_others:

@@ -102,10 +102,13 @@ class ImproveConfig:
     """the planner's online motion gain (``planner.dynamics.CalibratedDynamics``)"""
     shaping_fade: str = CostConfig.shaping_fade
     """where predicted motion fades the cost's shaping term (``CostConfig.shaping_fade``)"""
+    edge_weight: float = CostConfig.w_edge
+    """weight of the cost's term that keeps the object off the table's edge
+    (``CostConfig.w_edge``)"""
 
     def __post_init__(self) -> None:
         check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
-        CostConfig(shaping_fade=self.shaping_fade)  # refuses a bad one
+        self.cost()  # refuses a bad one
         self.planning()  # refuses a bad horizon
         for name in ("scenarios", "data", "measure_only"):  # one name or path stands for one
             value = getattr(self, name)
@@ -126,6 +129,10 @@ class ImproveConfig:
     def planning(self) -> PlannerConfig:
         """The optimiser's settings: the defaults but the horizon."""
         return PlannerConfig(horizon=self.horizon)
+
+    def cost(self) -> CostConfig:
+        """The cost's settings: the defaults but the shaping fade and the edge weight."""
+        return CostConfig(shaping_fade=self.shaping_fade, w_edge=self.edge_weight)
 
     def collect_seed(self, r: int) -> int:
         return self.seed * COLLECT_STREAM + r
@@ -170,7 +177,7 @@ def record_trial(
         planning=cfg.planning(), seed=trial["reset_seed"], max_steps=cfg.max_steps,
         action_noise=cfg.action_noise,
         feedback=cfg.feedback, contact_margin_m=cfg.contact_margin_m,
-        motion_gain=cfg.motion_gain, cost=CostConfig(shaping_fade=cfg.shaping_fade),
+        motion_gain=cfg.motion_gain, cost=cfg.cost(),
     )  # fmt: skip
     result = run_push(push, on_transition=on_transition)
     if current["rec"].length > 0:
@@ -305,7 +312,8 @@ def run_improve(
         old.pop("rounds", None), new.pop("rounds")  # more rounds continue a run
         # runs from before the planner's options had them as they were before
         old = {**ROLLOUT_BEFORE_OPTIONS, "shaping_fade": COST_BEFORE_OPTIONS["shaping_fade"],
-               "horizon": HORIZON_BEFORE, **old}  # fmt: skip
+               "edge_weight": COST_BEFORE_OPTIONS["w_edge"], "horizon": HORIZON_BEFORE,
+               **old}  # fmt: skip
         if old != new:
             raise InputError(
                 f"{out} holds another improve run ({'; '.join(differences(old, new))}); "
@@ -321,7 +329,7 @@ def run_improve(
                 planning=cfg.planning(), seed=cfg.seed, max_steps=cfg.max_steps,
                 feedback=cfg.feedback,
                 contact_margin_m=cfg.contact_margin_m, motion_gain=cfg.motion_gain,
-                cost=CostConfig(shaping_fade=cfg.shaping_fade),
+                cost=cfg.cost(),
             )  # fmt: skip
             summary = run_trials(tcfg, out / f"round_{r}" / "heldout" / name, workers=workers,
                                  backend=backend, address=address)  # fmt: skip

@@ -92,10 +92,13 @@ class StudyConfig:
     """the planner's online motion gain (``planner.dynamics.CalibratedDynamics``)"""
     shaping_fade: str = CostConfig.shaping_fade
     """where predicted motion fades the cost's shaping term (``CostConfig.shaping_fade``)"""
+    edge_weight: float = CostConfig.w_edge
+    """weight of the cost's term that keeps the object off the table's edge
+    (``CostConfig.w_edge``)"""
 
     def __post_init__(self) -> None:
         check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
-        CostConfig(shaping_fade=self.shaping_fade)  # refuses a bad one
+        self.cost()  # refuses a bad one
         self.planning()  # refuses a bad horizon
         if len(self.models) < 1:
             raise InputError("--models needs at least one model")
@@ -117,6 +120,10 @@ class StudyConfig:
     def planning(self) -> PlannerConfig:
         """The optimiser's settings of the trials: the defaults but the horizon."""
         return PlannerConfig(horizon=self.horizon)
+
+    def cost(self) -> CostConfig:
+        """The cost's settings: the defaults but the shaping fade and the edge weight."""
+        return CostConfig(shaping_fade=self.shaping_fade, w_edge=self.edge_weight)
 
 
 def parse_models(models: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:
@@ -545,7 +552,7 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
             planning=cfg.planning(), seed=cfg.seed, max_steps=cfg.max_steps,
             feedback=cfg.feedback,
             contact_margin_m=cfg.contact_margin_m, motion_gain=cfg.motion_gain,
-            cost=CostConfig(shaping_fade=cfg.shaping_fade),
+            cost=cfg.cost(),
         )  # fmt: skip
         summary = run_trials(trials, out / "trials" / safe, workers=workers)
         summary.pop("config")

@@ -268,8 +268,8 @@ MOTION_GAINS = ("online", "off")
 
 def _shared_planning_options(s: argparse.ArgumentParser) -> None:
     """The planner's settings that study and improve share with trials and plan-push:
-    ``--horizon``, ``--shaping-fade`` (a cost setting), and how the planner rolls a learned
-    model, ``--feedback``, ``--contact-margin`` and ``--motion-gain``."""
+    ``--horizon``, ``--shaping-fade`` and ``--edge-weight`` (cost settings), and how the planner
+    rolls a learned model, ``--feedback``, ``--contact-margin`` and ``--motion-gain``."""
     from planner.base import HORIZON_BEFORE, PlannerConfig
     from planner.cost import SHAPING_FADES, CostConfig
     from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK, PLAN_MOTION_GAIN
@@ -287,6 +287,12 @@ def _shared_planning_options(s: argparse.ArgumentParser) -> None:
         f"default {CostConfig.shaping_fade})",
     )  # fmt: skip
 
+    s.add_argument(
+        "--edge-weight", type=float, default=CostConfig.w_edge, metavar="W",
+        help="weight of the pushed object's predicted distance beyond where the pusher can "
+        f"still get round it, near the table's edge (0: no such term, the cost before; default "
+        f"{CostConfig.w_edge})",
+    )  # fmt: skip
     _feedback_option(s, "a learned model's predicted clouds over the plan's horizon",
                      PLAN_FEEDBACK)  # fmt: skip
     s.add_argument(
@@ -345,7 +351,7 @@ def _planning_configs(args: argparse.Namespace) -> dict:
     planning = PlannerConfig(horizon=args.horizon, samples=args.samples,
                              iterations=args.iterations, elites=args.elites)  # fmt: skip
     cost = CostConfig(w_spread=args.spread_weight, w_disturb=args.disturb_weight,
-                      shaping_fade=args.shaping_fade)  # fmt: skip
+                      shaping_fade=args.shaping_fade, w_edge=args.edge_weight)  # fmt: skip
     return {"planning": planning, "cost": cost, **_rollout_settings(args)}
 
 
@@ -355,8 +361,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
     cfg = StudyConfig(scenario=args.scenario, data=args.data, models=tuple(args.models),
                       trials=args.trials, seed=args.seed, planner=args.planner,
                       max_steps=args.max_steps, max_examples=args.max_examples,
-                      shaping_fade=args.shaping_fade, horizon=args.horizon,
-                      **_rollout_settings(args))  # fmt: skip
+                      shaping_fade=args.shaping_fade, edge_weight=args.edge_weight,
+                      horizon=args.horizon, **_rollout_settings(args))  # fmt: skip
     result = run_study(cfg, args.out, workers=args.workers)
     print((Path(args.out) / "study.md").read_text())
     print(f"wrote {args.out}/study.md, study.json, study.png and trials/")
@@ -419,7 +425,8 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         action_noise=args.action_noise, finetune_iters=args.finetune_iters,
         rollout_steps=args.rollout_steps, lr=args.lr, planner=args.planner,
         max_steps=args.max_steps, visited_fraction=args.visited_fraction,
-        shaping_fade=args.shaping_fade, horizon=args.horizon, **_rollout_settings(args),
+        shaping_fade=args.shaping_fade, edge_weight=args.edge_weight, horizon=args.horizon,
+        **_rollout_settings(args),
     )  # fmt: skip
     run_improve(cfg, args.out, workers=args.workers, **_backend(args))
     print((Path(args.out) / "improve.md").read_text())

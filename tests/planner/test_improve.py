@@ -181,11 +181,12 @@ def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(
     tiny_data, start_model, tmp_path
 ):
     """An improve folder written before ``feedback``, ``contact_margin_m``, ``shaping_fade``,
-    ``motion_gain`` and ``horizon`` existed planned on the grid with no gate and no gain, the
-    shaping faded everywhere, 4 steps ahead: it is refused with today's defaults, and continues
-    with those."""
+    ``motion_gain``, ``horizon`` and ``edge_weight`` existed planned on the grid with no gate
+    and no gain, the shaping faded everywhere, 4 steps ahead, no edge term: it is refused with
+    today's defaults or an edge term, and continues with those."""
     cfg = _cfg(tiny_data, start_model)
-    later = ("feedback", "contact_margin_m", "shaping_fade", "motion_gain", "horizon")
+    later = ("feedback", "contact_margin_m", "shaping_fade", "motion_gain", "horizon",
+             "edge_weight")  # fmt: skip
     meta = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in later}
     (tmp_path / "imp").mkdir()
     (tmp_path / "imp" / "config.json").write_text(json.dumps(meta))
@@ -198,11 +199,13 @@ def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(
     with pytest.raises(ValueError, match="horizon: folder has 4"):
         run_improve(before, tmp_path / "imp")
     before = dataclasses.replace(before, horizon=4)
+    with pytest.raises(ValueError, match="edge_weight: folder has 0.0"):
+        run_improve(dataclasses.replace(before, edge_weight=10.0), tmp_path / "imp")
     assert run_improve(before, tmp_path / "imp")["rounds"]
     trials = json.loads((tmp_path / "imp" / "round_0" / "heldout" / "tiny" / "config.json")
                         .read_text())  # fmt: skip
     assert trials["cost"]["shaping_fade"] == "everywhere" and trials["motion_gain"] is False
-    assert trials["planning"]["horizon"] == 4
+    assert trials["planning"]["horizon"] == 4 and trials["cost"]["w_edge"] == 0.0
 
 
 def test_finetuning_keeps_the_starting_network_and_its_loss(tiny_data, tmp_path):
