@@ -40,7 +40,7 @@ from planner.dynamics import (
 )
 from planner.loop import PushConfig, push_scenario, run_push
 from planner.trials import TrialsConfig, draw_trial, run_trials, summary_cells, worker_backend
-from scenarios import InputError, load_scenario
+from scenarios import InputError, check_seed, load_scenario
 from scenarios.config import differences, scenario_dict
 from sim.dataset import (
     CONTROL_LAYOUT,
@@ -107,6 +107,7 @@ class ImproveConfig:
     (``CostConfig.w_edge``)"""
 
     def __post_init__(self) -> None:
+        check_seed(self.seed)
         check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
         self.cost()  # refuses a bad one
         self.planning()  # refuses a bad horizon

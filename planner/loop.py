@@ -22,7 +22,7 @@ from planner.dynamics import (
     check_planner_rollout,
 )
 from planner.viz import MeshcatVisualiser, NullVisualiser
-from scenarios import InputError, Scenario, load_scenario
+from scenarios import InputError, Scenario, check_seed, load_scenario
 from se3net.device import check_device
 from sim import Observation, PushWorld
 from sim.planar import pose_errors
@@ -73,6 +73,7 @@ class PushConfig:
     the push's executed steps (``planner.dynamics.CalibratedDynamics``)"""
 
     def __post_init__(self) -> None:
+        check_seed(self.seed)
         if not 0.0 <= self.action_noise <= 1.0:
             raise InputError(f"action noise must be in [0, 1], got {self.action_noise}")
         if self.max_steps < 1:

@@ -45,7 +45,7 @@ from planner.dynamics import (
     to_world,
 )
 from planner.trials import TrialsConfig, fmt, run_trials, summary_cells, weights_of
-from scenarios import InputError
+from scenarios import InputError, check_seed
 from sim.planar import angle_between_deg
 from sim.shards import atomic_write_bytes, atomic_write_json
 
@@ -97,6 +97,7 @@ class StudyConfig:
     (``CostConfig.w_edge``)"""
 
     def __post_init__(self) -> None:
+        check_seed(self.seed)
         check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
         self.cost()  # refuses a bad one
         self.planning()  # refuses a bad horizon

@@ -31,7 +31,7 @@ from planner.dynamics import (
     check_planner_rollout,
 )
 from planner.loop import PushConfig, push_scenario, run_push
-from scenarios import InputError, Scenario, load_scenario
+from scenarios import InputError, Scenario, check_seed, load_scenario
 from scenarios.config import differences
 from sim import PushWorld
 from sim.jobs import Backend, run_jobs
@@ -69,6 +69,7 @@ class TrialsConfig:
     """a learned model's predicted motion scaled by a gain fitted online (``PushConfig``)"""
 
     def __post_init__(self) -> None:
+        check_seed(self.seed)
         if self.n < 1 or self.max_steps < 1:
             raise InputError(
                 f"--n and --max-steps must be positive, got {self.n} and {self.max_steps}"

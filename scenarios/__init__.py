@@ -10,7 +10,7 @@ from scenarios.config import (
     Scenario,
     TableConfig,
 )
-from scenarios.errors import InputError
+from scenarios.errors import InputError, check_seed
 from scenarios.loader import ScenarioError, list_scenarios, load_scenario, scenario_from_dict
 
 __all__ = [
@@ -24,6 +24,7 @@ __all__ = [
     "Scenario",
     "ScenarioError",
     "TableConfig",
+    "check_seed",
     "list_scenarios",
     "load_scenario",
     "scenario_from_dict",

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from scenarios import InputError
+from scenarios import InputError, check_seed
 from scenarios.config import differences
 from se3net.checkpoint import manifest_hash, read_checkpoint, save_checkpoint
 from se3net.data import PushDataset, paper_noise
@@ -109,6 +109,7 @@ class TrainConfig:
     observed ``grid``, or ``rendered`` again by the camera as the planner does"""
 
     def __post_init__(self) -> None:
+        check_seed(self.seed)
         for name in ("iters", "batch", "eval_every", "val_examples", "rollout_steps", "stride"):
             if getattr(self, name) < 1:
                 raise InputError(

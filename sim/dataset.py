@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from scenarios import InputError, Scenario, load_scenario
+from scenarios import InputError, Scenario, check_seed, load_scenario
 from scenarios.config import differences, scenario_dict
 from sim.camera import associated_targets
 from sim.controls import PUSHER_LAYOUT, control_layout
@@ -71,6 +71,7 @@ class DataConfig:
     """the joint-velocity exploration's scenes (scenarios of 'joints' controls)"""
 
     def __post_init__(self) -> None:
+        check_seed(self.seed)
         for name in ("episodes", "steps_per_episode", "episodes_per_shard"):
             if getattr(self, name) < 1:
                 raise InputError(f"{name} must be a positive integer, got {getattr(self, name)}")

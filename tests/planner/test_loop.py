@@ -97,6 +97,8 @@ def test_plan_push_json_and_exit_codes(capsys):
             ["--goal", "0.05", "0.0", "0", "--model", "oracle", "--spread-weight", "-1"],
             "--spread-weight must be a finite number >= 0, got -1.0",
         ),
+        (["--goal", "0.05", "0.0", "0", "--seed", "-1"], "--seed must be an integer in [0, 2**63)"),
+        (["--goal", "0.05", "0.0", "0", "--seed", str(2**64)], "got 18446744073709551616"),
     ],
 )
 def test_plan_push_bad_input_is_exit_code_2(args, message, capsys):

@@ -159,6 +159,19 @@ def test_train_and_eval_commands(tiny_data, tmp_path, capsys):
     assert not (every / "eval.json").exists()
 
 
+def test_a_seed_numpy_or_torch_cannot_take_is_refused_before_anything_runs(tiny_data, tmp_path,
+                                                                           capsys):  # fmt: skip
+    runs = [
+        ["data", "--scenario", "tiny", "--episodes", "1", "--out", str(tmp_path / "d")],
+        ["train", "--data", str(tiny_data), "--out", str(tmp_path / "r")],
+        ["trials", "--scenario", "tiny", "--n", "1", "--out", str(tmp_path / "t")],
+    ]
+    for args in runs:
+        assert main([*args, "--seed", "-1"]) == 2, args
+        assert "--seed must be an integer in [0, 2**63), got -1" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
 def test_train_and_eval_bad_input_is_exit_code_2(tiny_data, tmp_path, capsys):
     assert main(["train", "--data", str(tmp_path / "missing"), "--out", str(tmp_path / "r")]) == 2
     assert "not a dataset folder" in capsys.readouterr().err
