@@ -133,11 +133,20 @@ def read_trials(folder: str | Path) -> tuple[dict[str, Any], dict[int, dict[str,
             rec = json.loads(line)
         except json.JSONDecodeError:
             continue  # a blank line, or one cut by an interruption: that trial is unfinished
+        if not isinstance(rec, dict):
+            raise InputError(f"{log}: a line is not a trial record; is it a trial log?")
         missing = [k for k in RECORD_KEYS if k not in rec]
         if missing:
             raise InputError(f"{log}: a record lacks {', '.join(missing)}; is it a trial log?")
         records[rec["trial"]] = rec
-    return json.loads(meta.read_text()), records
+    try:
+        config = json.loads(meta.read_text())
+    except json.JSONDecodeError:
+        config = None
+    if not isinstance(config, dict):
+        raise InputError(f"{meta} is not a trials configuration (cut or edited?); run the "
+                         "folder's `se3push trials` command again to rewrite it")  # fmt: skip
+    return config, records
 
 
 def _draw(config: dict[str, Any]) -> dict[str, Any]:

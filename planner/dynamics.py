@@ -233,6 +233,8 @@ class OracleDynamics:
             self._clone.restore(start)
             for h in range(H):
                 if self._clone.ended:  # an object fell off: they stay where they were last seen
+                    if h == 0:
+                        raise ValueError("the oracle cannot plan from a world whose episode ended")
                     every[k, h], pusher[k, h] = every[k, h - 1], pusher[k, h - 1]
                     continue
                 every[k, h] = self._clone.advance(a[k, h])
@@ -470,6 +472,8 @@ class CalibratedDynamics:
         (each (3,) x_m, y_m, yaw_rad), for an object of footprint radius ``radius_m``."""
         p = footprint_step(before, predicted, radius_m) / self.gain  # the model's own
         a = footprint_step(before, after, radius_m)
+        if not (np.isfinite(p).all() and np.isfinite(a).all()):
+            return  # a step with no usable prediction would make the gain NaN for good
         self._num, self._den = self._num + float(a @ p), self._den + float(p @ p)
         prior = MOTION_GAIN_PRIOR_M**2
         self.gain = float(np.clip((prior + self._num) / (prior + self._den), *MOTION_GAIN_RANGE))
@@ -512,6 +516,11 @@ def make_dynamics(
 
         if model is not None and ENSEMBLE_SEP in model and not Path(model).exists():
             parts = model.split(ENSEMBLE_SEP)
+            if not all(parts):  # "a+" would add the shipped model unasked
+                raise InputError(
+                    f"--model {model}: an empty name between the {ENSEMBLE_SEP!r}s; join "
+                    "checkpoints as A+B"
+                )
             return EnsembleDynamics(
                 [
                     make_dynamics(

@@ -203,3 +203,13 @@ def test_pairs_of_folders_are_compared_each_and_pooled_in_one_test(folders, tmp_
     out = capsys.readouterr().out
     assert "pooled over 2 pairs of folders (53 paired trials, tight" in out
     assert "success A 39/53 (74%), B 30/53 (57%); A wins 15, loses 6" in out
+
+
+def test_a_damaged_folder_is_refused_in_one_line(folders, capsys):
+    a, b = folders
+    (a / "config.json").write_text('{"scenario": "single_box", "seed": 0')  # cut
+    assert main(["compare", str(a), str(b)]) == 2
+    assert "config.json is not a trials configuration" in capsys.readouterr().err
+    (b / "trials.jsonl").write_text("7\n")
+    assert main(["compare", str(b), str(b)]) == 2
+    assert "a line is not a trial record" in capsys.readouterr().err

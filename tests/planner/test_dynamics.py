@@ -400,3 +400,19 @@ def test_the_motion_gain_is_fitted_to_what_the_executed_steps_did():
     assert _observed(new(), 10.0, 1, size_m=0.0005) < 1.1
     turned = _observed(new(), 1.0, 20, turn=0.2)  # a turn nobody predicted: not more motion
     assert turned == pytest.approx(1.0)
+
+
+def test_an_ensemble_with_an_empty_name_is_refused():
+    from scenarios import InputError
+
+    with pytest.raises(InputError, match="an empty name between the"):
+        make_dynamics("se3net", load_scenario("single_box"), model="default+")
+
+
+def test_a_step_with_no_usable_prediction_leaves_the_motion_gain_as_it_was():
+    gain = CalibratedDynamics(_Carried((1.0, 1.0)))
+    before = np.zeros(3)
+    gain.observe(before, np.array([0.01, 0.0, 0.0]), np.array([0.02, 0.0, 0.0]), 0.04)
+    fitted = gain.gain
+    gain.observe(before, np.array([np.nan, 0.0, 0.0]), np.array([0.02, 0.0, 0.0]), 0.04)
+    assert gain.gain == fitted and np.isfinite(fitted) and fitted > 1
