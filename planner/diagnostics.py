@@ -105,6 +105,14 @@ def path_efficiency(trials: Iterable[Sequence[dict[str, float]]]) -> float | Non
     return progress / path if path > MIN_PROGRESS_M else None
 
 
+def unseen_share(trials: Iterable[Sequence[dict[str, Any]]]) -> float | None:
+    """Of the steps planned, pooled over trials, the share planned while the camera did not
+    see the pusher (``pusher_seen`` of the per-step records): a learned model that cannot see
+    the pusher predicts little from it. None where no step records it (older records)."""
+    seen = [s["pusher_seen"] for steps in trials for s in steps if "pusher_seen" in s]
+    return 1.0 - sum(seen) / len(seen) if seen else None
+
+
 def pauses(actual_disp_m: Sequence[float]) -> list[int]:
     """The lengths of the runs of still steps (below ``STILL_M``) between two steps that moved
     the object, over one trial's actual displacements."""

@@ -103,6 +103,8 @@ class StepRecord:
     """progress toward the goal position the plan predicted for the executed action"""
     actual_progress_m: float
     """the progress that happened"""
+    pusher_seen: bool = True
+    """whether the camera saw the pusher when the plan was made (``Observation.pusher_seen``)"""
 
 
 @dataclass
@@ -134,7 +136,7 @@ class PushResult:
     def summary(self) -> dict:
         """The result line's fields, with each step's predicted and actual motion (not the
         full per-step records)."""
-        keys = ("step", *STEP_FIGURES)
+        keys = ("step", *STEP_FIGURES, "pusher_seen")
         per_step = [{k: getattr(r, k) for k in keys} for r in self.records]
         return {**{k: v for k, v in asdict(self).items() if k != "records"}, "per_step": per_step}
 
@@ -257,7 +259,7 @@ def run_push(
         for step in range(cfg.max_steps):
             if reached():
                 break
-            before = obs.object_poses[cfg.object_index].copy()
+            before, seen = obs.object_poses[cfg.object_index].copy(), obs.pusher_seen
             action, info = planner.plan(plan_state(obs, world, cfg.object_index))
             if cfg.action_noise > 0:
                 action = np.clip(action + cfg.action_noise * bound * noise.standard_normal(2),
@@ -272,7 +274,8 @@ def run_push(
                 calibrated.observe(before, info.predicted_poses[0], pose, radius)
             figures = step_figures(before, info.predicted_poses[0], pose, goal)
             rec = StepRecord(step + 1, action.tolist(), pose.tolist(), *errors(), info.wall_ms,
-                             info.predicted_poses.tolist(), **figures)  # fmt: skip
+                             info.predicted_poses.tolist(), **figures,
+                             pusher_seen=seen)  # fmt: skip
             records.append(rec)
             if on_step is not None:
                 on_step(rec)

@@ -22,7 +22,7 @@ import numpy as np
 
 from planner.base import ONE_PLANNER_SETTINGS, PlannerConfig
 from planner.cost import COST_BEFORE_OPTIONS, CostConfig
-from planner.diagnostics import path_efficiency, pooled
+from planner.diagnostics import path_efficiency, pooled, unseen_share
 from planner.dynamics import (
     CONTACT_MARGIN_M,
     PLAN_FEEDBACK,
@@ -186,6 +186,9 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     out["diagnostics"] = pooled(r["diagnostics"] for r in records)
     # records from before the per-step figures were kept have none to pool
     out["path_efficiency"] = path_efficiency(r["per_step"] for r in records if "per_step" in r)
+    for outcome, won in (("successes", True), ("failures", False)):
+        steps = (r["per_step"] for r in records if "per_step" in r and r["success_tight"] == won)
+        out[f"pusher_unseen_{outcome}"] = unseen_share(steps)
     gains = [r["motion_gain"] for r in records if r.get("motion_gain") is not None]
     out["median_motion_gain"] = float(np.median(gains)) if gains else None
     # where generalisation stops: successes by the pushed object's shape and mass

@@ -140,6 +140,13 @@ def _cmd_trials(args: argparse.Namespace) -> int:
             else ""
         )
         + (
+            f"  pusher out of view      {_share(s['pusher_unseen_successes'])} of the steps "
+            f"of successes, {_share(s['pusher_unseen_failures'])} of failures\n"
+            if s.get("pusher_unseen_successes") is not None
+            or s.get("pusher_unseen_failures") is not None
+            else ""
+        )
+        + (
             f"  motion gain             {s['median_motion_gain']:.2f} (median at the end)\n"
             if s.get("median_motion_gain") is not None
             else ""
@@ -170,6 +177,11 @@ def _cmd_trials(args: argparse.Namespace) -> int:
         + f"wrote {args.out}/trials.jsonl, summary.json, paths.png"
     )
     return 0
+
+
+def _share(x: float | None) -> str:
+    """A share as a percentage ("–" for none)."""
+    return "–" if x is None else f"{x:.0%}"
 
 
 def _gain(row: dict) -> str:

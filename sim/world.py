@@ -99,6 +99,11 @@ class Observation:
         """(H,W) bool, the pixels that see object i."""
         return self.part == object_part(i)
 
+    @property
+    def pusher_seen(self) -> bool:
+        """Whether any pixel sees the pusher (a learned model cannot see it otherwise)."""
+        return bool((self.part == PART_PUSHER).any())
+
 
 def yaw_of(R: np.ndarray) -> float:
     """Heading of a rotation matrix's x axis in the world xy plane."""

@@ -150,6 +150,18 @@ def test_the_next_plan_is_smoothed_from_the_noisy_action_the_world_ran(monkeypat
     np.testing.assert_array_equal(planners[0].last_action.numpy(), ran)
 
 
+def test_each_step_records_whether_the_pusher_was_seen_when_it_was_planned(monkeypatch):
+    from sim.world import Observation
+
+    # a camera that loses sight of the pusher from 0.2 s on: steps planned at 0, 0.15, 0.3 s
+    monkeypatch.setattr(Observation, "pusher_seen", property(lambda obs: obs.time_s < 0.2))
+    quick = PlannerConfig(samples=8, iterations=1)
+    result = run_push(PushConfig(goal=_nearby_goal(), scenario="tiny", model="no-motion",
+                                 max_steps=3, planning=quick))  # fmt: skip
+    assert [r.pusher_seen for r in result.records] == [True, True, False]
+    assert [s["pusher_seen"] for s in result.summary()["per_step"]] == [True, True, False]
+
+
 @pytest.mark.parametrize("steps", ["0", "-3"])
 def test_plan_push_refuses_a_step_budget_below_one(steps, capsys):
     code = plan_push_main(["--goal", "0.1", "0.0", "0", "--max-steps", steps])

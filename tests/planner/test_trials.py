@@ -281,6 +281,28 @@ def test_path_efficiency_is_the_share_of_the_objects_travel_that_nears_the_goal(
     assert summarize([rec(0.0, 0.0, 0.0)])["path_efficiency"] is None
 
 
+def test_summaries_give_the_share_of_steps_planned_without_seeing_the_pusher():
+    """Pooled over the successes and over the failures apart; records from before the figure
+    was kept are left out, and a set with none of them has none."""
+    from planner.trials import summarize
+
+    def rec(won, seen):
+        step = {"actual_progress_m": 0.0, "actual_disp_m": 0.0}
+        steps = [step] if seen is None else [{**step, "pusher_seen": s} for s in seen]
+        return {"success_tight": won, "success_loose": won, "final_pos_err_m": 0.0,
+                "final_yaw_err_deg": 0.0, "steps": 1, "replan_ms_median": 1.0,
+                "diagnostics": {k: 0 for k in ("still_steps", "phantom_steps", "moved_steps",
+                                               "missed_steps", "predicted_progress_m",
+                                               "actual_progress_m")},
+                "per_step": steps}  # fmt: skip
+
+    failures = [rec(False, [True, False]), rec(False, [False, False, True, True, True, True])]
+    s = summarize([rec(True, [True] * 4), *failures, rec(False, None)])
+    assert s["pusher_unseen_successes"] == 0.0
+    assert s["pusher_unseen_failures"] == pytest.approx(3 / 8)
+    assert summarize([rec(True, None)])["pusher_unseen_successes"] is None
+
+
 @pytest.mark.scale
 def test_ray_gives_the_same_records_as_the_local_pool_and_resumes(ray_local, tmp_path):
     """The same trial set on the local pool and on Ray (2 workers): the same records, in trial

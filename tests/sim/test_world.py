@@ -154,3 +154,25 @@ def test_object_off_the_table_ends_the_episode(tiny_world):
 def test_unreachable_start_is_reported(tiny):
     with pytest.raises(InputError, match=r"out of the arm's reach .*move arm\.start_xy_m"):
         PushWorld(with_fields(tiny, "arm", start_xy_m=(0.5, 0.0))).reset(0)
+
+
+def test_the_observation_says_when_the_camera_cannot_see_the_pusher():
+    """single_box's camera sees the table's middle but not its corner at (+x, +y): driven
+    there, the pusher drops out of the image, and the observation says so."""
+    from scenarios import load_scenario
+
+    scenario = load_scenario("single_box")
+    world = PushWorld(scenario)
+    obs = world.reset(0)
+    assert obs.pusher_seen
+    target = np.array([0.2, 0.25])  # on the table, outside the camera's view
+    speed, dt = scenario.action.max_speed_m_s, scenario.action.dt_control_s
+    seen = []
+    for _ in range(40):
+        d = target - obs.pusher_xy_m
+        if np.linalg.norm(d) < 0.01:
+            break
+        obs = world.step(speed * d / max(np.linalg.norm(d), speed * dt))  # no overshoot
+        seen.append(obs.pusher_seen)
+    assert np.linalg.norm(target - obs.pusher_xy_m) < 0.03
+    assert not obs.pusher_seen and seen[0]
