@@ -510,11 +510,15 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
     accuracy figures are cached in ``out/accuracy/<label>.json``.
     """
     from planner.loop import push_scenario
+    from se3net.checkpoint import manifest_hash
+    from sim.datastore import read_manifest
 
     out = Path(out)
     push_scenario(cfg.scenario)
     horizon = cfg.horizon
     rows = []
+    # the data by its contents: a folder made again under the same path is other data
+    data_id = manifest_hash(read_manifest(cfg.data))
     for label, model in parse_models(cfg.models):
         safe = folder_name(label)
         cache = out / "accuracy" / f"{safe}.json"
@@ -525,7 +529,7 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
                   "horizon": horizon}  # fmt: skip
         # and the figures are of these weights on this data: a cache of others (or one from
         # before this was recorded, which cannot say) is measured again
-        measured = {"data": str(cfg.data), "max_examples": cfg.max_examples,
+        measured = {"data": data_id, "max_examples": cfg.max_examples,
                     "model_sha256": weights_of(model)}  # fmt: skip
         acc = json.loads(cache.read_text()) if cache.exists() else None
         before = {k: ROLLOUT_BEFORE_OPTIONS[k] for k in ("feedback", "contact_margin_m")}

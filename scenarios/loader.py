@@ -56,6 +56,16 @@ def scenario_from_dict(table: dict[str, Any], *, where: str = "stored scenario")
 
 def _checked(s: Scenario, where: str) -> Scenario:
     """Refuse combinations of fields that cannot work together."""
+    steps = s.action.dt_control_s / s.action.physics_dt_s
+    if abs(steps - round(steps)) > 1e-6 * steps:  # the world holds each action whole steps
+        raise _fail(where, "action.dt_control_s", "a whole number of action.physics_dt_s "
+                    f"({s.action.physics_dt_s})", s.action.dt_control_s)  # fmt: skip
+    ticks = 1.0 / (s.arm.controller_rate_hz * s.action.physics_dt_s)
+    if abs(ticks - round(ticks)) > 1e-6 * ticks or round(steps) % max(1, round(ticks)):
+        raise _fail(where, "arm.controller_rate_hz", "a rate whose period is a whole number "
+                    "of physics steps that divides the action's (else the last tick of each "
+                    "action is held short and the pusher runs fast)",
+                    s.arm.controller_rate_hz)  # fmt: skip
     count = list(s.objects.count)
     if s.action.controls == "joints" and count != [0, 0]:
         raise _fail(where, "objects.count", "[0, 0] with action.controls 'joints' (the arm "
@@ -70,19 +80,28 @@ def _checked(s: Scenario, where: str) -> Scenario:
 
 
 def _read(name_or_path: str | Path) -> tuple[str, str, str]:
+    """The text of a scenario, where it came from and its default name. A name without
+    ``.toml`` is a packaged scenario's whenever there is one, whatever the working directory
+    holds (a data folder named ``single_box`` must not hide the scenario)."""
     path = Path(name_or_path)
-    if path.suffix == ".toml" or path.exists():
+    resource = resources.files("scenarios") / f"{name_or_path}.toml"
+    packaged = path.suffix != ".toml" and "/" not in str(name_or_path) and resource.is_file()
+    if packaged:
+        text, where, stem = resource.read_bytes(), f"scenarios/{name_or_path}.toml", path.name
+    elif path.suffix == ".toml" or path.is_file():
         if not path.is_file():
             raise ScenarioError(f"scenario file {path} does not exist")
-        return path.read_text(), str(path), path.stem
-    resource = resources.files("scenarios") / f"{name_or_path}.toml"
-    if not resource.is_file():
+        text, where, stem = path.read_bytes(), str(path), path.stem
+    else:
         known = ", ".join(_packaged_names())
         raise ScenarioError(
             f"unknown scenario {str(name_or_path)!r}; known scenarios: {known} "
             "(or give a path to a .toml file)"
         )
-    return resource.read_text(), f"scenarios/{name_or_path}.toml", str(name_or_path)
+    try:
+        return text.decode("utf-8"), where, stem
+    except UnicodeDecodeError:
+        raise ScenarioError(f"{where} is not a UTF-8 text file (a scenario is TOML)") from None
 
 
 def _packaged_names() -> list[str]:

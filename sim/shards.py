@@ -12,6 +12,7 @@ import io
 import json
 import os
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -106,5 +107,5 @@ def read_shard(path: Path, *, expected_sha256: str | None = None) -> dict[str, n
     try:
         with np.load(path, allow_pickle=False) as npz:
             return {name: npz[name] for name in npz.files}
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
+    except (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError) as err:
         raise DataError(f"shard {path} cannot be read ({err}); {fix}") from None

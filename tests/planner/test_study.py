@@ -134,7 +134,12 @@ def test_study_end_to_end_on_tiny(study_data, tmp_path):
     assert measured == pytest.approx(rows["late"]["horizon_pos_err_cm"])
     # nor one of other weights or data (the label names a path, whose file may change)
     early = json.loads((tmp_path / "study" / "accuracy" / "early.json").read_text())
-    assert cached["measured"]["data"] == str(tiny_data) and cached["measured"]["max_examples"] == 40
+    # the data by its manifest's hash: a folder made again at the same path is other data
+    from se3net.checkpoint import manifest_hash
+    from sim.datastore import read_manifest
+
+    data_id = manifest_hash(read_manifest(tiny_data))
+    assert cached["measured"]["data"] == data_id and cached["measured"]["max_examples"] == 40
     assert len({early["measured"]["model_sha256"], cached["measured"]["model_sha256"]}) == 2
     for other in ({"data": "elsewhere"}, {"model_sha256": early["measured"]["model_sha256"]}):
         stale = {**cached, "measured": {**cached["measured"], **other}, "horizon_pos_err_cm": 99.0}

@@ -66,6 +66,16 @@ def test_malformed_toml_names_the_file(tmp_path):
             r"'table\.frction': expected one of",
         ),
         ("max_speed_m_s = 0.15\n", "", r"'action\.max_speed_m_s' is missing"),
+        (
+            "controller_rate_hz = 100.0",
+            "controller_rate_hz = 30.0",
+            r"'arm\.controller_rate_hz': expected a rate whose period is a whole number",
+        ),
+        (
+            "physics_dt_s = 0.002",
+            "physics_dt_s = 0.004",
+            r"'action\.dt_control_s': expected a whole number of action\.physics_dt_s",
+        ),
     ],
 )
 def test_bad_fields_name_file_field_expected_and_found(tmp_path, old, new, pattern):
@@ -78,3 +88,17 @@ def test_scenarios_are_frozen():
     s = load_scenario("tiny")
     with pytest.raises(AttributeError):
         s.table.friction = 1.0  # type: ignore[misc]
+
+
+def test_a_folder_named_like_a_scenario_does_not_hide_it(tmp_path, monkeypatch):
+    """``--scenario tiny --out tiny``: the data folder the run makes is not the scenario."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "tiny").mkdir()
+    assert load_scenario("tiny").name == "tiny"
+
+
+def test_a_scenario_file_that_is_not_text_is_refused_in_one_line(tmp_path):
+    path = tmp_path / "bin.toml"
+    path.write_bytes(b"\xff\xfe\x00binary")
+    with pytest.raises(ScenarioError, match="bin.toml is not a UTF-8 text file"):
+        load_scenario(path)
