@@ -103,7 +103,7 @@ class StepRecord:
     """progress toward the goal position the plan predicted for the executed action"""
     actual_progress_m: float
     """the progress that happened"""
-    pusher_seen: bool = True
+    pusher_seen: bool
     """whether the camera saw the pusher when the plan was made (``Observation.pusher_seen``)"""
 
 
