@@ -311,6 +311,11 @@ def evaluate(
         )
     out_dir = Path(out_dir)
     names = checkpoint_names(paths)
+    if split == "all":  # every checkpoint before any is measured
+        from sim.datastore import read_manifest
+
+        for p in paths:
+            refuse_trained_on(p, read_manifest(data), data)
     out_dir.mkdir(parents=True, exist_ok=True)
     results = [
         evaluate_checkpoint(
