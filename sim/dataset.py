@@ -304,9 +304,12 @@ def shard_episodes(cfg: DataConfig, i: int) -> range:
     return range(i * cfg.episodes_per_shard, min((i + 1) * cfg.episodes_per_shard, cfg.episodes))
 
 
-def make_shard(cfg: DataConfig, i: int, out_dir: str) -> tuple[int, str, dict[str, Any]]:
-    """Generate and write shard i; returns (i, sha256, stats). Runs in worker processes."""
-    scenario = load_scenario(cfg.scenario)
+def make_shard(
+    cfg: DataConfig, i: int, out_dir: str, scenario: Scenario
+) -> tuple[int, str, dict[str, Any]]:
+    """Generate and write shard i of ``scenario`` (the one the folder's identity was made
+    from, not the file read again: an edit during the run must not change the data); returns
+    (i, sha256, stats). Runs in worker processes."""
     T_cam_world = PushWorld(scenario).camera.T_cam_world
     episodes = [run_episode(scenario, cfg, e) for e in shard_episodes(cfg, i)]
     arrays = {k: np.stack([ep[k] for ep in episodes]) for k in episodes[0]}
@@ -416,7 +419,8 @@ def generate(
         rate = bar.format_dict["rate"] or 0.0
         bar.set_postfix(examples=examples, ex_per_s=f"{rate * cfg.steps_per_episode:.0f}")
 
-    for shard in run_jobs(make_shard, [(cfg, i, str(out_dir.resolve())) for i in todo], jobs):
+    shard_jobs = [(cfg, i, str(out_dir.resolve()), scenario) for i in todo]
+    for shard in run_jobs(make_shard, shard_jobs, jobs):
         record(*shard)
     bar.close()
     manifest["complete"] = len(manifest["shards"]) == cfg.n_shards

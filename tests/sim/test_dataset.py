@@ -44,11 +44,11 @@ def test_interrupted_run_resumes_to_the_same_bytes(reference, tmp_path, monkeypa
     real = dataset.make_shard
     calls = []
 
-    def interrupted(cfg, i, out_dir):
+    def interrupted(cfg, i, out_dir, scenario):
         if calls:
             raise KeyboardInterrupt
         calls.append(i)
-        return real(cfg, i, out_dir)
+        return real(cfg, i, out_dir, scenario)
 
     monkeypatch.setattr(dataset, "make_shard", interrupted)
     with pytest.raises(KeyboardInterrupt):
@@ -78,11 +78,11 @@ def test_a_repair_of_damaged_shards_leaves_the_folder_incomplete_until_it_ends(
     real = dataset.make_shard
     calls = []
 
-    def interrupted(cfg, i, out_dir):
+    def interrupted(cfg, i, out_dir, scenario):
         if calls:
             raise KeyboardInterrupt
         calls.append(i)
-        return real(cfg, i, out_dir)
+        return real(cfg, i, out_dir, scenario)
 
     monkeypatch.setattr(dataset, "make_shard", interrupted)
     with pytest.raises(KeyboardInterrupt):
@@ -166,3 +166,28 @@ def test_stored_episode_replays_to_the_same_world(reference):
         np.testing.assert_array_equal(
             obs.T_world_part, ep["T_world_part"][t + 1, : len(obs.T_world_part)]
         )
+
+
+def test_a_scenario_file_edited_during_a_run_does_not_change_its_data(tmp_path, monkeypatch):
+    """The workers make every shard from the scenario the folder's identity was made from,
+    not from the file read again (which would record the new data under the old identity)."""
+    import dataclasses
+    from importlib import resources
+
+    toml = tmp_path / "mine.toml"
+    text = (resources.files("scenarios") / "tiny.toml").read_text()  # the table's friction 0.5
+    toml.write_text(text)
+    cfg = dataclasses.replace(CFG, scenario=str(toml))
+    generate(cfg, tmp_path / "clean", progress=False)
+    real = dataset.make_shard
+
+    def then_edited(cfg, i, out_dir, scenario):
+        out = real(cfg, i, out_dir, scenario)
+        toml.write_text(text.replace("friction = 0.5", "friction = 0.9", 1))
+        return out
+
+    toml.write_text(text)
+    monkeypatch.setattr(dataset, "make_shard", then_edited)
+    generate(cfg, tmp_path / "edited", progress=False)
+    assert "friction = 0.9" in toml.read_text()
+    assert shard_bytes(tmp_path / "edited") == shard_bytes(tmp_path / "clean")
