@@ -40,7 +40,9 @@ def test_two_workers_give_the_same_bytes(reference, tmp_path):
     assert shard_bytes(tmp_path) == shard_bytes(reference)
 
 
-def test_interrupted_run_resumes_to_the_same_bytes(reference, tmp_path, monkeypatch):
+def _interrupt_after_one_shard(monkeypatch):
+    """Make ``generate`` stop (KeyboardInterrupt) once one shard is written; returns the real
+    ``make_shard`` to put back."""
     real = dataset.make_shard
     calls = []
 
@@ -51,6 +53,11 @@ def test_interrupted_run_resumes_to_the_same_bytes(reference, tmp_path, monkeypa
         return real(cfg, i, out_dir, scenario)
 
     monkeypatch.setattr(dataset, "make_shard", interrupted)
+    return real
+
+
+def test_interrupted_run_resumes_to_the_same_bytes(reference, tmp_path, monkeypatch):
+    real = _interrupt_after_one_shard(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         generate(CFG, tmp_path, progress=False)
     first = shard_bytes(tmp_path)
@@ -75,16 +82,7 @@ def test_a_repair_of_damaged_shards_leaves_the_folder_incomplete_until_it_ends(
     generate(CFG, tmp_path, progress=False)
     for name in ("shard_00000.npz", "shard_00001.npz"):
         (tmp_path / name).write_bytes(b"damaged")
-    real = dataset.make_shard
-    calls = []
-
-    def interrupted(cfg, i, out_dir, scenario):
-        if calls:
-            raise KeyboardInterrupt
-        calls.append(i)
-        return real(cfg, i, out_dir, scenario)
-
-    monkeypatch.setattr(dataset, "make_shard", interrupted)
+    real = _interrupt_after_one_shard(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         generate(CFG, tmp_path, progress=False)
     with pytest.raises(DataError, match="incomplete"):
