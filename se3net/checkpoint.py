@@ -14,6 +14,7 @@ import io
 import json
 import pickle
 import zipfile
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -125,20 +126,23 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     return blob
 
 
-def refuse_trained_on(path: str | Path, manifest: dict[str, Any], data: str | Path) -> None:
+def refuse_trained_on(
+    paths: Iterable[str | Path], manifest: dict[str, Any], data: str | Path
+) -> None:
     """For a measurement on every episode of ``data`` (``--split all``, meant for a dataset
-    held out from training): refuse a checkpoint trained on it, whose figures would be taken
-    on its own training episodes.
+    held out from training; ``manifest`` is its manifest): refuse the first of the checkpoints
+    trained on it, whose figures would be taken on its own training episodes.
 
     Raises:
-        CheckpointError: the checkpoint's training data include ``data``.
+        CheckpointError: a checkpoint's training data include ``data``.
     """
-    trained = str(read_checkpoint(path).get("data_hash", "")).split("+")
-    if manifest_hash(manifest) in trained:
-        raise CheckpointError(
-            f"--split all: {path} was trained on {data}, so all its episodes include the ones it "
-            "learnt from; use --split test, or a dataset made to be held out"
-        )
+    held_out = manifest_hash(manifest)
+    for path in paths:
+        if held_out in str(read_checkpoint(path).get("data_hash", "")).split("+"):
+            raise CheckpointError(
+                f"--split all: {path} was trained on {data}, so all its episodes include the "
+                "ones it learnt from; use --split test, or a dataset made to be held out"
+            )
 
 
 def model_config(path: str | Path) -> ModelConfig:

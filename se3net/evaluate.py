@@ -120,7 +120,7 @@ def evaluate_checkpoint(
                "device": device}  # fmt: skip
     one = PushDataset(data, split=split, horizon=1, **reading)
     if split == "all":
-        refuse_trained_on(path, one.manifest, data)
+        refuse_trained_on([path], one.manifest, data)
     model, blob = load_checkpoint(path, scenario=one.scenario, device=device)
     flow, masks = FlowStats(), MaskStats()
     idx = evenly_spaced(len(one), max_examples)
@@ -314,8 +314,7 @@ def evaluate(
     if split == "all":  # every checkpoint before any is measured
         from sim.datastore import read_manifest
 
-        for p in paths:
-            refuse_trained_on(p, read_manifest(data), data)
+        refuse_trained_on(paths, read_manifest(data), data)
     out_dir.mkdir(parents=True, exist_ok=True)
     results = [
         evaluate_checkpoint(

@@ -396,8 +396,7 @@ def _cmd_deflection(args: argparse.Namespace) -> int:
             raise InputError(f"--models: {model} has no deflection to measure; name checkpoints")
     manifest = read_manifest(args.data)
     if args.split == "all":
-        for _, model in models:
-            refuse_trained_on(model, manifest, args.data)
+        refuse_trained_on([model for _, model in models], manifest, args.data)
     scenario = scenario_of(manifest)
     dynamics = [study_dynamics(m, scenario, PLAN_FEEDBACK, CONTACT_MARGIN_M) for _, m in models]
     tables = push_deflection(dynamics, args.data, max_windows=args.max_windows, split=args.split)
