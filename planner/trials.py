@@ -345,7 +345,8 @@ def run_trials(
     from tqdm import tqdm
 
     jobs = worker_backend(workers, threads, backend, address)
-    push_scenario(cfg.scenario)  # fail early on an unknown scenario, or one of joint controls
+    # fail early on an unknown scenario, or one of joint controls
+    scenario = push_scenario(cfg.scenario)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta_path, log = out / "config.json", out / "trials.jsonl"
@@ -377,7 +378,7 @@ def run_trials(
                 except json.JSONDecodeError:
                     continue  # a line cut by an interruption: that trial runs again
                 records[rec["trial"]] = rec
-        check_draws(records, load_scenario(cfg.scenario), cfg.seed, out)
+        check_draws(records, scenario, cfg.seed, out)
         write_log(log, records)
     todo = [i for i in range(cfg.n) if i not in records]
     bar = tqdm(
