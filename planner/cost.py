@@ -5,7 +5,8 @@ Per step h of a rollout: the object's position error and symmetry-aware yaw erro
 (the terminal step weighted more than the running steps), a shaping term that draws the pusher
 to the object's far side from the goal (once behind it, only while the object is predicted not
 to move), penalties
-on action size and change, a penalty for the pusher leaving the workspace, optionally one for
+on action size and change, a penalty for the pusher leaving the workspace, one for the pusher
+passing through the object while it is not yet behind it (``w_keepout``), optionally one for
 the object going where the pusher could no longer get round it (``w_edge``), and, with an
 ensemble of models, a penalty on their disagreement (the planner keeps to what they agree on),
 and, among other objects, a penalty on their predicted displacement (it keeps them in place).
@@ -18,6 +19,12 @@ not fade the shaping term: with the pusher on the wrong side, motion is a push t
 or a learned model's phantom (a few millimetres predicted beside an object nothing touches),
 and a quadratic pose cost centimetres from the goal weighs those millimetres above the way
 round, so the pusher would hover beside the object chasing them.
+
+The keep-out term is geometry, not the model: until the pusher is behind the object, every
+step of its path is kept out of the circle about the object's centre that holds the object's
+footprint, widened by the pusher's radius. A learned model can miss that such a path touches
+the object (it predicts a held-out box's graze at a fraction of its motion, or none), and the
+planner, believing the way is clear, cuts through it and drags the object off, the wrong way.
 """
 
 from __future__ import annotations
@@ -27,16 +34,17 @@ from dataclasses import dataclass
 
 import torch
 
-from planner.dynamics import PlanState, Rollout
+from planner.dynamics import PlanState, Rollout, segment_distance
 from scenarios import InputError, Scenario
 from sim.planar import wrap_angle
 
 SHAPING_FADES = ("behind", "everywhere")
 """where predicted motion may fade the shaping term (``CostConfig.shaping_fade``)"""
 
-COST_BEFORE_OPTIONS = {"w_disturb": 0.0, "shaping_fade": "everywhere", "w_edge": 0.0}
+COST_BEFORE_OPTIONS = {"w_disturb": 0.0, "shaping_fade": "everywhere", "w_edge": 0.0,
+                       "w_keepout": 0.0}  # fmt: skip
 """cost settings added later, as the records made before them had them (no disturbance term;
-the shaping term faded wherever the pusher was; no edge term)"""
+the shaping term faded wherever the pusher was; no edge term; no keep-out term)"""
 
 
 @dataclass(frozen=True)
@@ -84,6 +92,10 @@ class CostConfig:
     """weight of how far the other objects are predicted to be moved by the last step
     (scaled like the position error): the planner pushes one object among others and keeps
     the others where they are"""
+    w_keepout: float = 10.0
+    """weight of how far the pusher's path enters the object's keep-out circle (the circle about
+    its centre that holds its footprint, widened by the pusher's radius) while the pusher is not
+    behind it, per step (scaled like the position error)"""
     w_edge: float = 0.0
     """weight of how far the pushed object is predicted to be, at any step, beyond where the
     pusher can still get round it inside the workspace (scaled like the position error): an
@@ -100,7 +112,7 @@ class CostConfig:
                 continue
             if not (math.isfinite(value) and value >= 0):
                 flags = {"w_spread": "--spread-weight", "w_disturb": "--disturb-weight",
-                         "w_edge": "--edge-weight"}  # fmt: skip
+                         "w_edge": "--edge-weight", "w_keepout": "--keepout-weight"}  # fmt: skip
                 what = flags.get(name, f"cost setting {name}")
                 raise InputError(f"{what} must be a finite number >= 0, got {value}")
         for name in ("pos_scale_m", "yaw_scale_rad", "shaping_scale_m", "moving_m"):
@@ -200,10 +212,11 @@ class PushCost:
         moved_sq = ((rollout.object_poses[:, -1, :2] - state.object_pose[:2].to(actions)) ** 2).sum(
             -1
         )
+        behind = self.is_behind(state)
         # sqrt of the gate exp(-moved^2 / m^2), written without sqrt (its gradient at 0 is NaN);
         # until the pusher is behind the object, predicted motion does not fade the term
         sqrt_gate = torch.exp(-0.5 * moved_sq / c.moving_m**2)
-        if c.shaping_fade == "behind" and not self.is_behind(state):
+        if c.shaping_fade == "behind" and not behind:
             sqrt_gate = torch.ones_like(sqrt_gate)
         dist = (
             rollout.pusher_xy[:, -1] - self.shaping_target(state).to(actions)
@@ -214,6 +227,14 @@ class PushCost:
         res.append(math.sqrt(c.w_smooth) * (actions - prev).flatten(1) / self.bound)
         out = torch.relu(rollout.pusher_xy.abs() - self.half.to(actions)) / 0.01
         res.append(math.sqrt(c.w_workspace) * out.flatten(1))
+        if c.w_keepout > 0 and not behind:
+            path = torch.cat([state.pusher_xy.to(actions).expand(K, 1, 2), rollout.pusher_xy], 1)
+            centre = state.object_pose[:2].to(actions).expand(K, 2)
+            keep = state.footprint_radius_m + self.pusher_radius
+            depth = torch.stack(
+                [torch.relu(keep - segment_distance(centre, path[:, h], path[:, h + 1]))
+                 for h in range(H)], 1)  # fmt: skip
+            res.append(math.sqrt(c.w_keepout) * depth / c.pos_scale_m)
         if c.w_edge > 0:
             reach = self.half.to(actions) - state.footprint_radius_m - self.pusher_radius
             beyond = torch.relu(rollout.object_poses[..., :2].abs() - reach) / c.pos_scale_m

@@ -105,6 +105,8 @@ class ImproveConfig:
     edge_weight: float = CostConfig.w_edge
     """weight of the cost's term that keeps the object off the table's edge
     (``CostConfig.w_edge``)"""
+    keepout_weight: float = CostConfig.w_keepout
+    """weight of the cost's keep-out term (``CostConfig.w_keepout``)"""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
@@ -132,8 +134,10 @@ class ImproveConfig:
         return PlannerConfig(horizon=self.horizon)
 
     def cost(self) -> CostConfig:
-        """The cost's settings: the defaults but the shaping fade and the edge weight."""
-        return CostConfig(shaping_fade=self.shaping_fade, w_edge=self.edge_weight)
+        """The cost's settings: the defaults but the shaping fade, the edge and keep-out weights."""
+        return CostConfig(
+            shaping_fade=self.shaping_fade, w_edge=self.edge_weight, w_keepout=self.keepout_weight
+        )
 
     def collect_seed(self, r: int) -> int:
         return self.seed * COLLECT_STREAM + r
@@ -313,7 +317,8 @@ def run_improve(
         old.pop("rounds", None), new.pop("rounds")  # more rounds continue a run
         # runs from before the planner's options had them as they were before
         old = {**ROLLOUT_BEFORE_OPTIONS, "shaping_fade": COST_BEFORE_OPTIONS["shaping_fade"],
-               "edge_weight": COST_BEFORE_OPTIONS["w_edge"], "horizon": HORIZON_BEFORE,
+               "edge_weight": COST_BEFORE_OPTIONS["w_edge"],
+               "keepout_weight": COST_BEFORE_OPTIONS["w_keepout"], "horizon": HORIZON_BEFORE,
                **old}  # fmt: skip
         if old != new:
             raise InputError(

@@ -95,6 +95,8 @@ class StudyConfig:
     edge_weight: float = CostConfig.w_edge
     """weight of the cost's term that keeps the object off the table's edge
     (``CostConfig.w_edge``)"""
+    keepout_weight: float = CostConfig.w_keepout
+    """weight of the cost's keep-out term (``CostConfig.w_keepout``)"""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
@@ -123,8 +125,10 @@ class StudyConfig:
         return PlannerConfig(horizon=self.horizon)
 
     def cost(self) -> CostConfig:
-        """The cost's settings: the defaults but the shaping fade and the edge weight."""
-        return CostConfig(shaping_fade=self.shaping_fade, w_edge=self.edge_weight)
+        """The cost's settings: the defaults but the shaping fade, the edge and keep-out weights."""
+        return CostConfig(
+            shaping_fade=self.shaping_fade, w_edge=self.edge_weight, w_keepout=self.keepout_weight
+        )
 
 
 def parse_models(models: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:

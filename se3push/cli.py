@@ -280,7 +280,8 @@ MOTION_GAINS = ("online", "off")
 
 def _shared_planning_options(s: argparse.ArgumentParser) -> None:
     """The planner's settings that study and improve share with trials and plan-push:
-    ``--horizon``, ``--shaping-fade`` and ``--edge-weight`` (cost settings), and how the planner
+    ``--horizon``, ``--shaping-fade``, ``--keepout-weight`` and ``--edge-weight`` (cost settings),
+    and how the planner
     rolls a learned model, ``--feedback``, ``--contact-margin`` and ``--motion-gain``."""
     from planner.base import HORIZON_BEFORE, PlannerConfig
     from planner.cost import SHAPING_FADES, CostConfig
@@ -299,6 +300,12 @@ def _shared_planning_options(s: argparse.ArgumentParser) -> None:
         f"default {CostConfig.shaping_fade})",
     )  # fmt: skip
 
+    s.add_argument(
+        "--keepout-weight", type=float, default=CostConfig.w_keepout, metavar="W",
+        help="weight of the pusher's path entering the circle that holds the pushed object "
+        "(widened by the pusher's radius) while the pusher is not yet behind it (0: no such "
+        f"term, the cost before; default {CostConfig.w_keepout})",
+    )  # fmt: skip
     s.add_argument(
         "--edge-weight", type=float, default=CostConfig.w_edge, metavar="W",
         help="weight of the pushed object's predicted distance beyond where the pusher can "
@@ -363,7 +370,8 @@ def _planning_configs(args: argparse.Namespace) -> dict:
     planning = PlannerConfig(horizon=args.horizon, samples=args.samples,
                              iterations=args.iterations, elites=args.elites)  # fmt: skip
     cost = CostConfig(w_spread=args.spread_weight, w_disturb=args.disturb_weight,
-                      shaping_fade=args.shaping_fade, w_edge=args.edge_weight)  # fmt: skip
+                      shaping_fade=args.shaping_fade, w_edge=args.edge_weight,
+                      w_keepout=args.keepout_weight)  # fmt: skip
     return {"planning": planning, "cost": cost, **_rollout_settings(args)}
 
 
@@ -374,7 +382,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
                       trials=args.trials, seed=args.seed, planner=args.planner,
                       max_steps=args.max_steps, max_examples=args.max_examples,
                       shaping_fade=args.shaping_fade, edge_weight=args.edge_weight,
-                      horizon=args.horizon, **_rollout_settings(args))  # fmt: skip
+                      keepout_weight=args.keepout_weight, horizon=args.horizon,
+                      **_rollout_settings(args))  # fmt: skip
     result = run_study(cfg, args.out, workers=args.workers)
     print((Path(args.out) / "study.md").read_text())
     print(f"wrote {args.out}/study.md, study.json, study.png and trials/")
@@ -436,8 +445,8 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         action_noise=args.action_noise, finetune_iters=args.finetune_iters,
         rollout_steps=args.rollout_steps, lr=args.lr, planner=args.planner,
         max_steps=args.max_steps, visited_fraction=args.visited_fraction,
-        shaping_fade=args.shaping_fade, edge_weight=args.edge_weight, horizon=args.horizon,
-        **_rollout_settings(args),
+        shaping_fade=args.shaping_fade, edge_weight=args.edge_weight,
+        keepout_weight=args.keepout_weight, horizon=args.horizon, **_rollout_settings(args),
     )  # fmt: skip
     run_improve(cfg, args.out, workers=args.workers, **_backend(args))
     print((Path(args.out) / "improve.md").read_text())

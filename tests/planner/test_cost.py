@@ -132,6 +132,37 @@ def test_the_edge_term_stops_the_object_where_the_pusher_can_still_get_round_it(
     assert reach - 0.01 < end[10.0] < reach + 0.005, (end, reach)
 
 
+def test_the_keepout_term_takes_a_blind_planner_round_the_object_not_through_it():
+    """A model blind to contact (the object never moves) and a pusher just off a large box's
+    face on the goal's side: without the keep-out term the plan heads straight for the way round
+    and its path cuts across the box's corner; with it, the path keeps to the circle that holds
+    the box, which touches the box's corners (so the pusher passes them within a millimetre)."""
+    import dataclasses
+
+    from planner import PlannerConfig, make_planner
+    from planner.dynamics import NoMotionDynamics
+    from sim.shapes import ObjectSpec
+
+    scenario = load_scenario("single_box")
+    box = ObjectSpec("box", (0.12, 0.10, 0.06), 0.6, 0.5)
+    pusher = torch.tensor([0.065 + scenario.arm.pusher_radius_m, 0.03])  # 5 mm off the +x face
+    state = dataclasses.replace(_state(box, pusher.tolist()), object_pose=torch.zeros(3))
+    dyn = NoMotionDynamics(scenario)
+    cfg = PlannerConfig(horizon=3, samples=128, elites=12, iterations=5)
+    clearance = {}
+    for w in (0.0, 10.0):
+        cost = PushCost(scenario, torch.tensor([0.15, 0.0, 0.0]), CostConfig(w_keepout=w))
+        assert not cost.is_behind(state)
+        _, info = make_planner("cem", dyn, cost, scenario, cfg).plan(state)
+        path = dyn.rollout(state, torch.from_numpy(info.actions).float()[None]).pusher_xy[0]
+        path = torch.cat([pusher[None], path]).numpy()
+        along = [a + t * (b - a) for a, b in zip(path[:-1], path[1:], strict=True)
+                 for t in np.linspace(0, 1, 21)]  # fmt: skip
+        clearance[w] = min(box.distance_to_footprint_m(p) for p in along)
+    radius = scenario.arm.pusher_radius_m
+    assert clearance[0.0] < 0.5 * radius and clearance[10.0] > radius - 0.001, clearance
+
+
 class _PhantomNudge:
     """A learned model's phantom: whenever the pusher is within ``REACH`` of the object's
     centre, whatever it does, the object is predicted to creep ``NUDGE`` per step toward +x
@@ -158,14 +189,16 @@ def test_predicted_motion_does_not_stop_the_way_round_until_the_pusher_is_behind
     """A pusher beside the object on the goal's side, a model predicting a phantom creep toward
     the goal while the pusher stays near: with the shaping term faded only behind the object
     the plan heads round to the far side; faded everywhere (the cost before), the phantom
-    switches the shaping off and the pusher stays where it is."""
+    switches the shaping off and the pusher stays where it is. (The keep-out term is off: the
+    test is of the fade alone.)"""
     import dataclasses
 
     from planner import PlannerConfig, make_planner
     from tests.planner.toy import toy_state
 
     scenario = load_scenario("single_box")
-    cost = PushCost(scenario, torch.tensor([0.12, 0.0, 0.0]), CostConfig(shaping_fade=fade))
+    cost = PushCost(scenario, torch.tensor([0.12, 0.0, 0.0]),
+                    CostConfig(shaping_fade=fade, w_keepout=0.0))  # fmt: skip
     pusher = 0.06 * torch.tensor([math.cos(math.radians(30)), math.sin(math.radians(30))])
     state = dataclasses.replace(toy_state(), pusher_xy=pusher)
     assert not cost.is_behind(state)  # on the goal's side, 150 degrees round from behind
