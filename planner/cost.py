@@ -20,6 +20,11 @@ or a learned model's phantom (a few millimetres predicted beside an object nothi
 and a quadratic pose cost centimetres from the goal weighs those millimetres above the way
 round, so the pusher would hover beside the object chasing them.
 
+Both terms are about getting behind the object, and an object already near the goal has no
+behind worth reaching: what is left is turning it and placing it, which takes the pusher at its
+side, inside the keep-out circle. So within ``near_goal_m`` of the goal both fade out with the
+object's distance to it (``near_goal_m`` 0: they never fade).
+
 The keep-out term is geometry, not the model: until the pusher is behind the object, every
 step of its path is kept out of the circle about the object's centre that holds the object's
 footprint, widened by the pusher's radius. A learned model can miss that such a path touches
@@ -42,9 +47,10 @@ SHAPING_FADES = ("behind", "everywhere")
 """where predicted motion may fade the shaping term (``CostConfig.shaping_fade``)"""
 
 COST_BEFORE_OPTIONS = {"w_disturb": 0.0, "shaping_fade": "everywhere", "w_edge": 0.0,
-                       "w_keepout": 0.0}  # fmt: skip
+                       "w_keepout": 0.0, "near_goal_m": 0.0}  # fmt: skip
 """cost settings added later, as the records made before them had them (no disturbance term;
-the shaping term faded wherever the pusher was; no edge term; no keep-out term)"""
+the shaping term faded wherever the pusher was; no edge term; no keep-out term; neither faded
+near the goal)"""
 
 
 @dataclass(frozen=True)
@@ -96,6 +102,9 @@ class CostConfig:
     """weight of how far the pusher's path enters the object's keep-out circle (the circle about
     its centre that holds its footprint, widened by the pusher's radius) while the pusher is not
     behind it, per step (scaled like the position error)"""
+    near_goal_m: float = 0.03
+    """within this distance of the goal's position the shaping and keep-out terms fade in
+    proportion to the object's distance from it (0: they never fade)"""
     w_edge: float = 0.0
     """weight of how far the pushed object is predicted to be, at any step, beyond where the
     pusher can still get round it inside the workspace (scaled like the position error): an
@@ -112,7 +121,8 @@ class CostConfig:
                 continue
             if not (math.isfinite(value) and value >= 0):
                 flags = {"w_spread": "--spread-weight", "w_disturb": "--disturb-weight",
-                         "w_edge": "--edge-weight", "w_keepout": "--keepout-weight"}  # fmt: skip
+                         "w_edge": "--edge-weight", "w_keepout": "--keepout-weight",
+                         "near_goal_m": "--near-goal"}  # fmt: skip
                 what = flags.get(name, f"cost setting {name}")
                 raise InputError(f"{what} must be a finite number >= 0, got {value}")
         for name in ("pos_scale_m", "yaw_scale_rad", "shaping_scale_m", "moving_m"):
@@ -188,6 +198,14 @@ class PushCost:
         way = torch.stack([cs * behind[0] - sn * behind[1], sn * behind[0] + cs * behind[1]])
         return obj + radius * way
 
+    def near_goal_fade(self, state: PlanState) -> float:
+        """The factor on the shaping and keep-out terms: 1 while the object is ``near_goal_m``
+        or more from the goal's position, falling in proportion to its distance inside that."""
+        near = self.cfg.near_goal_m
+        if near == 0:
+            return 1.0
+        return min(1.0, float((self.goal[:2] - state.object_pose[:2].to(self.goal)).norm()) / near)
+
     def residuals(
         self,
         state: PlanState,
@@ -212,7 +230,7 @@ class PushCost:
         moved_sq = ((rollout.object_poses[:, -1, :2] - state.object_pose[:2].to(actions)) ** 2).sum(
             -1
         )
-        behind = self.is_behind(state)
+        behind, fade = self.is_behind(state), self.near_goal_fade(state)
         # sqrt of the gate exp(-moved^2 / m^2), written without sqrt (its gradient at 0 is NaN);
         # until the pusher is behind the object, predicted motion does not fade the term
         sqrt_gate = torch.exp(-0.5 * moved_sq / c.moving_m**2)
@@ -221,7 +239,7 @@ class PushCost:
         dist = (
             rollout.pusher_xy[:, -1] - self.shaping_target(state).to(actions)
         ) / c.shaping_scale_m
-        res.append(math.sqrt(c.w_shaping) * sqrt_gate[:, None] * dist)
+        res.append(math.sqrt(c.w_shaping) * fade * sqrt_gate[:, None] * dist)
         res.append(math.sqrt(c.w_action) * actions.flatten(1) / self.bound)
         prev = torch.cat([last_action.to(actions).expand(K, 1, 2), actions[:, :-1]], 1)
         res.append(math.sqrt(c.w_smooth) * (actions - prev).flatten(1) / self.bound)
@@ -234,7 +252,7 @@ class PushCost:
             depth = torch.stack(
                 [torch.relu(keep - segment_distance(centre, path[:, h], path[:, h + 1]))
                  for h in range(H)], 1)  # fmt: skip
-            res.append(math.sqrt(c.w_keepout) * depth / c.pos_scale_m)
+            res.append(math.sqrt(c.w_keepout) * fade * depth / c.pos_scale_m)
         if c.w_edge > 0:
             reach = self.half.to(actions) - state.footprint_radius_m - self.pusher_radius
             beyond = torch.relu(rollout.object_poses[..., :2].abs() - reach) / c.pos_scale_m

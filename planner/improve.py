@@ -107,6 +107,8 @@ class ImproveConfig:
     (``CostConfig.w_edge``)"""
     keepout_weight: float = CostConfig.w_keepout
     """weight of the cost's keep-out term (``CostConfig.w_keepout``)"""
+    near_goal_m: float = CostConfig.near_goal_m
+    """where the shaping and keep-out terms fade near the goal (``CostConfig.near_goal_m``)"""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
@@ -134,10 +136,10 @@ class ImproveConfig:
         return PlannerConfig(horizon=self.horizon)
 
     def cost(self) -> CostConfig:
-        """The cost's settings: the defaults but the shaping fade, the edge and keep-out weights."""
-        return CostConfig(
-            shaping_fade=self.shaping_fade, w_edge=self.edge_weight, w_keepout=self.keepout_weight
-        )
+        """The cost's settings: the defaults but the shaping fade, the edge and keep-out weights
+        and the fade near the goal."""
+        return CostConfig(shaping_fade=self.shaping_fade, w_edge=self.edge_weight,
+                          w_keepout=self.keepout_weight, near_goal_m=self.near_goal_m)  # fmt: skip
 
     def collect_seed(self, r: int) -> int:
         return self.seed * COLLECT_STREAM + r
@@ -318,7 +320,8 @@ def run_improve(
         # runs from before the planner's options had them as they were before
         old = {**ROLLOUT_BEFORE_OPTIONS, "shaping_fade": COST_BEFORE_OPTIONS["shaping_fade"],
                "edge_weight": COST_BEFORE_OPTIONS["w_edge"],
-               "keepout_weight": COST_BEFORE_OPTIONS["w_keepout"], "horizon": HORIZON_BEFORE,
+               "keepout_weight": COST_BEFORE_OPTIONS["w_keepout"],
+               "near_goal_m": COST_BEFORE_OPTIONS["near_goal_m"], "horizon": HORIZON_BEFORE,
                **old}  # fmt: skip
         if old != new:
             raise InputError(

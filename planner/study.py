@@ -97,6 +97,8 @@ class StudyConfig:
     (``CostConfig.w_edge``)"""
     keepout_weight: float = CostConfig.w_keepout
     """weight of the cost's keep-out term (``CostConfig.w_keepout``)"""
+    near_goal_m: float = CostConfig.near_goal_m
+    """where the shaping and keep-out terms fade near the goal (``CostConfig.near_goal_m``)"""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
@@ -125,10 +127,10 @@ class StudyConfig:
         return PlannerConfig(horizon=self.horizon)
 
     def cost(self) -> CostConfig:
-        """The cost's settings: the defaults but the shaping fade, the edge and keep-out weights."""
-        return CostConfig(
-            shaping_fade=self.shaping_fade, w_edge=self.edge_weight, w_keepout=self.keepout_weight
-        )
+        """The cost's settings: the defaults but the shaping fade, the edge and keep-out weights
+        and the fade near the goal."""
+        return CostConfig(shaping_fade=self.shaping_fade, w_edge=self.edge_weight,
+                          w_keepout=self.keepout_weight, near_goal_m=self.near_goal_m)  # fmt: skip
 
 
 def parse_models(models: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:

@@ -280,8 +280,8 @@ MOTION_GAINS = ("online", "off")
 
 def _shared_planning_options(s: argparse.ArgumentParser) -> None:
     """The planner's settings that study and improve share with trials and plan-push:
-    ``--horizon``, ``--shaping-fade``, ``--keepout-weight`` and ``--edge-weight`` (cost settings),
-    and how the planner
+    ``--horizon``, ``--shaping-fade``, ``--keepout-weight``, ``--near-goal`` and ``--edge-weight``
+    (cost settings), and how the planner
     rolls a learned model, ``--feedback``, ``--contact-margin`` and ``--motion-gain``."""
     from planner.base import HORIZON_BEFORE, PlannerConfig
     from planner.cost import SHAPING_FADES, CostConfig
@@ -305,6 +305,12 @@ def _shared_planning_options(s: argparse.ArgumentParser) -> None:
         help="weight of the pusher's path entering the circle that holds the pushed object "
         "(widened by the pusher's radius) while the pusher is not yet behind it (0: no such "
         f"term, the cost before; default {CostConfig.w_keepout})",
+    )  # fmt: skip
+    s.add_argument(
+        "--near-goal", type=float, default=CostConfig.near_goal_m, metavar="M",
+        help="within M metres of the goal's position the shaping and keep-out terms fade with "
+        "the object's distance from it, leaving the pusher free to turn and place the object "
+        f"(0: they never fade, the cost before; default {CostConfig.near_goal_m})",
     )  # fmt: skip
     s.add_argument(
         "--edge-weight", type=float, default=CostConfig.w_edge, metavar="W",
@@ -371,7 +377,7 @@ def _planning_configs(args: argparse.Namespace) -> dict:
                              iterations=args.iterations, elites=args.elites)  # fmt: skip
     cost = CostConfig(w_spread=args.spread_weight, w_disturb=args.disturb_weight,
                       shaping_fade=args.shaping_fade, w_edge=args.edge_weight,
-                      w_keepout=args.keepout_weight)  # fmt: skip
+                      w_keepout=args.keepout_weight, near_goal_m=args.near_goal)  # fmt: skip
     return {"planning": planning, "cost": cost, **_rollout_settings(args)}
 
 
@@ -382,7 +388,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
                       trials=args.trials, seed=args.seed, planner=args.planner,
                       max_steps=args.max_steps, max_examples=args.max_examples,
                       shaping_fade=args.shaping_fade, edge_weight=args.edge_weight,
-                      keepout_weight=args.keepout_weight, horizon=args.horizon,
+                      keepout_weight=args.keepout_weight, near_goal_m=args.near_goal,
+                      horizon=args.horizon,
                       **_rollout_settings(args))  # fmt: skip
     result = run_study(cfg, args.out, workers=args.workers)
     print((Path(args.out) / "study.md").read_text())
@@ -446,7 +453,8 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         rollout_steps=args.rollout_steps, lr=args.lr, planner=args.planner,
         max_steps=args.max_steps, visited_fraction=args.visited_fraction,
         shaping_fade=args.shaping_fade, edge_weight=args.edge_weight,
-        keepout_weight=args.keepout_weight, horizon=args.horizon, **_rollout_settings(args),
+        keepout_weight=args.keepout_weight, near_goal_m=args.near_goal, horizon=args.horizon,
+        **_rollout_settings(args),
     )  # fmt: skip
     run_improve(cfg, args.out, workers=args.workers, **_backend(args))
     print((Path(args.out) / "improve.md").read_text())

@@ -163,6 +163,53 @@ def test_the_keepout_term_takes_a_blind_planner_round_the_object_not_through_it(
     assert clearance[0.0] < 0.5 * radius and clearance[10.0] > radius - 0.001, clearance
 
 
+class _Turnstile:
+    """An object that only turns: while the pusher is within ``TOUCH`` of its centre, it turns
+    by the pusher's motion along x over the pusher's y (a push along -x at +y turns it
+    anticlockwise); it never slides."""
+
+    name, differentiable, TOUCH = "toy", True, 0.055
+
+    def __init__(self, dt):
+        self.dt = dt
+
+    def rollout(self, state, actions, *, clouds=False):
+        from planner.dynamics import Rollout, integrate_pusher
+
+        pusher = integrate_pusher(state, actions, self.dt)  # (K,H,2)
+        before = torch.cat([state.pusher_xy.to(actions).expand(len(actions), 1, 2), pusher], 1)
+        touch = (before[:, :-1].norm(dim=-1) < self.TOUCH).to(actions)
+        turn = -touch * (before[:, 1:, 0] - before[:, :-1, 0]) / before[:, :-1, 1].clamp_min(0.02)
+        yaw = state.object_pose[2].to(actions) + torch.cumsum(turn, 1)
+        xy = state.object_pose[:2].to(actions).expand(*yaw.shape, 2)
+        return Rollout(torch.cat([xy, yaw[..., None]], -1), pusher)
+
+
+def test_near_the_goal_the_pusher_may_work_at_the_object_s_side():
+    """An object 5 mm from its goal, 40 degrees off, that turns only when the pusher works at
+    its side inside the keep-out circle: with the terms faded near the goal the plan goes in
+    and turns it; without the fade (``near_goal_m`` 0) the keep-out term holds the pusher out
+    and the object stays turned away."""
+    import dataclasses
+
+    from planner import PlannerConfig, make_planner
+    from sim.shapes import ObjectSpec
+
+    scenario = load_scenario("single_box")
+    bar = ObjectSpec("box", (0.12, 0.04, 0.05), 0.3, 0.5)
+    state = dataclasses.replace(_state(bar, [0.0, 0.08]), object_pose=torch.zeros(3))
+    dyn = _Turnstile(scenario.action.dt_control_s)
+    cfg = PlannerConfig(horizon=6, samples=128, elites=12, iterations=5)
+    left = {}
+    for near in (0.0, 0.03):
+        cost = PushCost(scenario, torch.tensor([0.005, 0.0, math.radians(-40)]),
+                        CostConfig(near_goal_m=near))  # fmt: skip
+        assert not cost.is_behind(state)
+        _, info = make_planner("cem", dyn, cost, scenario, cfg).plan(state)
+        left[near] = abs(math.degrees(info.predicted_poses[-1, 2]) + 40)
+    assert left[0.03] < 5 and left[0.0] > 35, left
+
+
 class _PhantomNudge:
     """A learned model's phantom: whenever the pusher is within ``REACH`` of the object's
     centre, whatever it does, the object is predicted to creep ``NUDGE`` per step toward +x

@@ -181,12 +181,13 @@ def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(
     tiny_data, start_model, tmp_path
 ):
     """An improve folder written before ``feedback``, ``contact_margin_m``, ``shaping_fade``,
-    ``motion_gain``, ``horizon`` and ``edge_weight`` existed planned on the grid with no gate
-    and no gain, the shaping faded everywhere, 4 steps ahead, no edge term: it is refused with
-    today's defaults or an edge term, and continues with those."""
+    ``motion_gain``, ``horizon``, ``edge_weight``, ``keepout_weight`` and ``near_goal_m``
+    existed planned on the grid with no gate and no gain, the shaping faded everywhere, 4 steps
+    ahead, no edge term, no keep-out term and no fade near the goal: it is refused with today's
+    defaults or an edge term, and continues with those."""
     cfg = _cfg(tiny_data, start_model)
     later = ("feedback", "contact_margin_m", "shaping_fade", "motion_gain", "horizon",
-             "edge_weight")  # fmt: skip
+             "edge_weight", "keepout_weight", "near_goal_m")  # fmt: skip
     meta = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in later}
     (tmp_path / "imp").mkdir()
     (tmp_path / "imp" / "config.json").write_text(json.dumps(meta))
@@ -199,6 +200,12 @@ def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(
     with pytest.raises(ValueError, match="horizon: folder has 4"):
         run_improve(before, tmp_path / "imp")
     before = dataclasses.replace(before, horizon=4)
+    with pytest.raises(ValueError, match="keepout_weight: folder has 0.0"):
+        run_improve(before, tmp_path / "imp")
+    before = dataclasses.replace(before, keepout_weight=0.0)
+    with pytest.raises(ValueError, match="near_goal_m: folder has 0.0"):
+        run_improve(before, tmp_path / "imp")
+    before = dataclasses.replace(before, near_goal_m=0.0)
     with pytest.raises(ValueError, match="edge_weight: folder has 0.0"):
         run_improve(dataclasses.replace(before, edge_weight=10.0), tmp_path / "imp")
     assert run_improve(before, tmp_path / "imp")["rounds"]
@@ -206,6 +213,7 @@ def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(
                         .read_text())  # fmt: skip
     assert trials["cost"]["shaping_fade"] == "everywhere" and trials["motion_gain"] is False
     assert trials["planning"]["horizon"] == 4 and trials["cost"]["w_edge"] == 0.0
+    assert trials["cost"]["w_keepout"] == 0.0 and trials["cost"]["near_goal_m"] == 0.0
 
 
 def test_finetuning_keeps_the_starting_network_and_its_loss(tiny_data, tmp_path):

@@ -389,25 +389,30 @@ def test_a_folder_from_before_the_shaping_fade_continues_only_as_everywhere(tmp_
     assert e.value.code == 2
 
 
-def test_a_folder_from_before_the_edge_term_continues_only_without_it(tmp_path, capsys):
-    """Records from before ``--edge-weight`` had no edge term: such a folder extends with
-    weight 0 and is refused with another; the command line's weight reaches the folder's
-    cost, and a negative one is refused (exit 2)."""
-    cfg = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1)
+@pytest.mark.parametrize(("name", "flag"), [("w_edge", "--edge-weight"),
+                                            ("w_keepout", "--keepout-weight"),
+                                            ("near_goal_m", "--near-goal")])  # fmt: skip
+def test_a_folder_from_before_a_cost_term_continues_only_without_it(name, flag, tmp_path, capsys):
+    """Records from before ``--edge-weight`` had no edge term, those from before
+    ``--keepout-weight`` no keep-out term, and those from before ``--near-goal`` no fade near
+    the goal: such a folder extends with the setting at 0 and is refused with another; the
+    command line's value reaches the folder's cost, and a negative one is refused (exit 2)."""
+    cfg = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1,
+                       cost=CostConfig(**{name: 0.0}))  # fmt: skip
     run_trials(cfg, tmp_path / "old", progress=False)
     meta = json.loads((tmp_path / "old" / "config.json").read_text())
-    del meta["cost"]["w_edge"]
+    del meta["cost"][name]
     (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
-    with pytest.raises(InputError, match="cost.w_edge: folder has 0.0, this run asks for 10.0"):
-        run_trials(replace(cfg, n=2, cost=CostConfig(w_edge=10.0)), tmp_path / "old",
+    with pytest.raises(InputError, match=f"cost.{name}: folder has 0.0, this run asks for 10.0"):
+        run_trials(replace(cfg, n=2, cost=CostConfig(**{name: 10.0})), tmp_path / "old",
                    progress=False)  # fmt: skip
     assert run_trials(replace(cfg, n=2), tmp_path / "old", progress=False)["trials"] == 2
     args = ["trials", "--scenario", "tiny", "--n", "1", "--model", "no-motion", "--max-steps",
             "1", "--out", str(tmp_path / "cli")]  # fmt: skip
-    assert main([*args, "--edge-weight", "10"]) == 0
-    assert json.loads((tmp_path / "cli" / "config.json").read_text())["cost"]["w_edge"] == 10.0
-    assert main([*args, "--edge-weight", "-1"]) == 2
-    assert "--edge-weight must be a finite number >= 0, got -1.0" in capsys.readouterr().err
+    assert main([*args, flag, "7"]) == 0
+    assert json.loads((tmp_path / "cli" / "config.json").read_text())["cost"][name] == 7.0
+    assert main([*args, flag, "-1"]) == 2
+    assert f"{flag} must be a finite number >= 0, got -1.0" in capsys.readouterr().err
 
 
 def test_a_folder_whose_scenario_file_changed_is_refused_and_kept(tmp_path):
