@@ -300,26 +300,27 @@ def _shared_planning_options(s: argparse.ArgumentParser) -> None:
         f"default {CostConfig.shaping_fade})",
     )  # fmt: skip
 
-    s.add_argument(
-        "--keepout-weight", type=float, default=CostConfig.w_keepout, metavar="W",
-        help="weight of the pusher's path entering the circle that holds the pushed object "
-        "(widened by the pusher's radius) while the pusher is not yet behind it (0: no such "
-        f"term, the cost before; default {CostConfig.w_keepout})",
+    # fmt: off
+    for flag, field, metavar, text in (
+        ("--keepout-weight", "w_keepout", "W",
+         "weight of the pusher's path entering the circle that holds the pushed object (widened "
+         "by the pusher's radius) while the pusher is not yet behind it (0: no such term, the "
+         "cost before"),
+        ("--near-goal", "near_goal_m", "M",
+         "within M metres of the goal's position the shaping and keep-out terms fade with the "
+         "object's distance from it, leaving the pusher free to turn and place the object (0: "
+         "they never fade, the cost before"),
+        ("--edge-weight", "w_edge", "W",
+         "weight of the pushed object's predicted distance beyond where the pusher can still "
+         "get round it, near the table's edge (0: no such term, the cost before"),
+    ):
+        default = getattr(CostConfig, field)
+        s.add_argument(flag, type=float, default=default, metavar=metavar,
+                       help=f"{text}; default {default})")
+    # fmt: on
+    _feedback_option(
+        s, "a learned model's predicted clouds over the plan's horizon", PLAN_FEEDBACK
     )  # fmt: skip
-    s.add_argument(
-        "--near-goal", type=float, default=CostConfig.near_goal_m, metavar="M",
-        help="within M metres of the goal's position the shaping and keep-out terms fade with "
-        "the object's distance from it, leaving the pusher free to turn and place the object "
-        f"(0: they never fade, the cost before; default {CostConfig.near_goal_m})",
-    )  # fmt: skip
-    s.add_argument(
-        "--edge-weight", type=float, default=CostConfig.w_edge, metavar="W",
-        help="weight of the pushed object's predicted distance beyond where the pusher can "
-        f"still get round it, near the table's edge (0: no such term, the cost before; default "
-        f"{CostConfig.w_edge})",
-    )  # fmt: skip
-    _feedback_option(s, "a learned model's predicted clouds over the plan's horizon",
-                     PLAN_FEEDBACK)  # fmt: skip
     s.add_argument(
         "--contact-margin", type=_contact_margin, default=CONTACT_MARGIN_M, metavar="M|off",
         help="a learned model's predicted motion of an object counts only at steps where the "
