@@ -20,16 +20,16 @@ or a learned model's phantom (a few millimetres predicted beside an object nothi
 and a quadratic pose cost centimetres from the goal weighs those millimetres above the way
 round, so the pusher would hover beside the object chasing them.
 
-Both terms are about getting behind the object, and an object already near the goal has no
-behind worth reaching: what is left is turning it and placing it, which takes the pusher at its
-side, inside the keep-out circle. So within ``near_goal_m`` of the goal both fade out with the
-object's distance to it (``near_goal_m`` 0: they never fade).
-
 The keep-out term is geometry, not the model: until the pusher is behind the object, every
 step of its path is kept out of the circle about the object's centre that holds the object's
 footprint, widened by the pusher's radius. A learned model can miss that such a path touches
 the object (it predicts a held-out box's graze at a fraction of its motion, or none), and the
 planner, believing the way is clear, cuts through it and drags the object off, the wrong way.
+
+The shaping and keep-out terms are both about getting behind the object, and an object already
+near the goal has no behind worth reaching: what is left is turning it and placing it, which
+takes the pusher at its side, inside the keep-out circle. So within ``near_goal_m`` of the goal
+both fade out with the object's distance to it (``near_goal_m`` 0: they never fade).
 """
 
 from __future__ import annotations
