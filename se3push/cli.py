@@ -280,9 +280,9 @@ MOTION_GAINS = ("online", "off")
 
 def _shared_planning_options(s: argparse.ArgumentParser) -> None:
     """The planner's settings that study and improve share with trials and plan-push:
-    ``--horizon``, ``--shaping-fade``, ``--keepout-weight``, ``--near-goal`` and ``--edge-weight``
-    (cost settings), and how the planner
-    rolls a learned model, ``--feedback``, ``--contact-margin`` and ``--motion-gain``."""
+    ``--horizon``, ``--shaping-fade``, ``--keepout-weight``, ``--near-goal`` and
+    ``--edge-weight`` (cost settings), and how the planner rolls a learned model,
+    ``--feedback``, ``--contact-margin`` and ``--motion-gain``."""
     from planner.base import HORIZON_BEFORE, PlannerConfig
     from planner.cost import SHAPING_FADES, CostConfig
     from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK, PLAN_MOTION_GAIN
@@ -390,8 +390,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
                       max_steps=args.max_steps, max_examples=args.max_examples,
                       shaping_fade=args.shaping_fade, edge_weight=args.edge_weight,
                       keepout_weight=args.keepout_weight, near_goal_m=args.near_goal,
-                      horizon=args.horizon,
-                      **_rollout_settings(args))  # fmt: skip
+                      horizon=args.horizon, **_rollout_settings(args))  # fmt: skip
     result = run_study(cfg, args.out, workers=args.workers)
     print((Path(args.out) / "study.md").read_text())
     print(f"wrote {args.out}/study.md, study.json, study.png and trials/")
