@@ -46,6 +46,11 @@ from sim.planar import wrap_angle
 SHAPING_FADES = ("behind", "everywhere")
 """where predicted motion may fade the shaping term (``CostConfig.shaping_fade``)"""
 
+COST_FLAGS = {"w_spread": "--spread-weight", "w_disturb": "--disturb-weight",
+              "w_edge": "--edge-weight", "w_keepout": "--keepout-weight",
+              "near_goal_m": "--near-goal"}  # fmt: skip
+"""the command-line flag of each cost setting that has one"""
+
 COST_BEFORE_OPTIONS = {"w_disturb": 0.0, "shaping_fade": "everywhere", "w_edge": 0.0,
                        "w_keepout": 0.0, "near_goal_m": 0.0}  # fmt: skip
 """cost settings added later, as the records made before them had them (no disturbance term;
@@ -120,10 +125,7 @@ class CostConfig:
             if name == "shaping_fade":
                 continue
             if not (math.isfinite(value) and value >= 0):
-                flags = {"w_spread": "--spread-weight", "w_disturb": "--disturb-weight",
-                         "w_edge": "--edge-weight", "w_keepout": "--keepout-weight",
-                         "near_goal_m": "--near-goal"}  # fmt: skip
-                what = flags.get(name, f"cost setting {name}")
+                what = COST_FLAGS.get(name, f"cost setting {name}")
                 raise InputError(f"{what} must be a finite number >= 0, got {value}")
         for name in ("pos_scale_m", "yaw_scale_rad", "shaping_scale_m", "moving_m"):
             if not getattr(self, name) > 0:  # the scales divide

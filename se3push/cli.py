@@ -284,7 +284,7 @@ def _shared_planning_options(s: argparse.ArgumentParser) -> None:
     ``--edge-weight`` (cost settings), and how the planner rolls a learned model,
     ``--feedback``, ``--contact-margin`` and ``--motion-gain``."""
     from planner.base import HORIZON_BEFORE, PlannerConfig
-    from planner.cost import SHAPING_FADES, CostConfig
+    from planner.cost import COST_FLAGS, SHAPING_FADES, CostConfig
     from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK, PLAN_MOTION_GAIN
 
     s.add_argument(
@@ -301,21 +301,21 @@ def _shared_planning_options(s: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
     # fmt: off
-    for flag, field, metavar, text in (
-        ("--keepout-weight", "w_keepout", "W",
+    for field, metavar, text in (
+        ("w_keepout", "W",
          "weight of the pusher's path entering the circle that holds the pushed object (widened "
          "by the pusher's radius) while the pusher is not yet behind it (0: no such term, the "
          "cost before"),
-        ("--near-goal", "near_goal_m", "M",
+        ("near_goal_m", "M",
          "within M metres of the goal's position the shaping and keep-out terms fade with the "
          "object's distance from it, leaving the pusher free to turn and place the object (0: "
          "they never fade, the cost before"),
-        ("--edge-weight", "w_edge", "W",
+        ("w_edge", "W",
          "weight of the pushed object's predicted distance beyond where the pusher can still "
          "get round it, near the table's edge (0: no such term, the cost before"),
     ):
         default = getattr(CostConfig, field)
-        s.add_argument(flag, type=float, default=default, metavar=metavar,
+        s.add_argument(COST_FLAGS[field], type=float, default=default, metavar=metavar,
                        help=f"{text}; default {default})")
     # fmt: on
     _feedback_option(
