@@ -156,13 +156,13 @@ class MPCPolicy:
         env: the environment (or a wrapper of it, such as ``gymnasium.make`` returns).
         model: dynamics, as ``plan-push --model`` (default, a checkpoint, oracle, ...).
         planner: cem, mppi, grad or sqp.
-        motion_gain: scale a learned model's predicted motion by a gain fitted online
-            (``PushConfig.motion_gain``).
+        motion_gain: scale a learned model's predicted motion by gains fitted online
+            (``PushConfig.motion_gain``: off, online or contact).
     """
 
     def __init__(self, env: gymnasium.Env, *, model: str = "default", planner: str = "cem",
                  planning: PlannerConfig | None = None, cost: CostConfig | None = None,
-                 device: str = "cpu", motion_gain: bool = PLAN_MOTION_GAIN) -> None:  # fmt: skip
+                 device: str = "cpu", motion_gain: str = PLAN_MOTION_GAIN) -> None:  # fmt: skip
         planning, cost = planning or PlannerConfig(), cost or CostConfig()
         self.env: PushEnv = env.unwrapped
         self.options = {"model": model, "planner": planner, "planning": planning, "cost": cost,
@@ -180,13 +180,15 @@ class MPCPolicy:
                              **self.options)  # fmt: skip
             self.planner, self.episode = push_planner(cfg, env.scenario, env.world), env.episode
             self.last = None
-        pose = env.obs.object_poses[0]
+        pose, pusher = env.obs.object_poses[0], env.obs.pusher_xy_m
         dynamics = self.planner.dynamics
         if isinstance(dynamics, CalibratedDynamics) and self.last is not None:
-            before, predicted = self.last  # what the last action did, beside what was predicted
-            dynamics.observe(before, predicted, pose, env.world.objects[0].footprint_radius_m)
+            # what the last action did, beside what was predicted
+            before, predicted, pusher_before = self.last
+            radius = env.world.objects[0].footprint_radius_m
+            dynamics.observe(before, predicted, pose, radius, (pusher_before, pusher))
         action, info = self.planner.plan(plan_state(env.obs, env.world))
-        self.last = pose.copy(), info.predicted_poses[0]
+        self.last = pose.copy(), info.predicted_poses[0], pusher.copy()
         return action
 
 

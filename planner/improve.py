@@ -37,6 +37,7 @@ from planner.dynamics import (
     PLAN_MOTION_GAIN,
     ROLLOUT_BEFORE_OPTIONS,
     check_planner_rollout,
+    recorded_motion_gain,
 )
 from planner.loop import PushConfig, push_scenario, run_push
 from planner.trials import TrialsConfig, draw_trial, run_trials, summary_cells, worker_backend
@@ -98,8 +99,8 @@ class ImproveConfig:
     """how the planner feeds a learned model's predictions back (``se3net.rollout.FEEDBACK``)"""
     contact_margin_m: float | None = CONTACT_MARGIN_M
     """the planner's contact gate (``planner.dynamics.contact_gate``; None: off)"""
-    motion_gain: bool = PLAN_MOTION_GAIN
-    """the planner's online motion gain (``planner.dynamics.CalibratedDynamics``)"""
+    motion_gain: str = PLAN_MOTION_GAIN
+    """the planner's motion gain (``planner.dynamics.MOTION_GAINS``)"""
     shaping_fade: str = CostConfig.shaping_fade
     """where predicted motion fades the cost's shaping term (``CostConfig.shaping_fade``)"""
     edge_weight: float = CostConfig.w_edge
@@ -323,6 +324,7 @@ def run_improve(
                "keepout_weight": COST_BEFORE_OPTIONS["w_keepout"],
                "near_goal_m": COST_BEFORE_OPTIONS["near_goal_m"], "horizon": HORIZON_BEFORE,
                **old}  # fmt: skip
+        old["motion_gain"] = recorded_motion_gain(old["motion_gain"])
         if old != new:
             raise InputError(
                 f"{out} holds another improve run ({'; '.join(differences(old, new))}); "

@@ -68,9 +68,10 @@ class PushConfig:
     contact_margin_m: float | None = CONTACT_MARGIN_M
     """a learned model's predicted motion of an object counts only where something passes
     within this margin of touching it (``planner.dynamics.contact_gate``; None: all counts)"""
-    motion_gain: bool = PLAN_MOTION_GAIN
-    """a learned model's predicted motion of the pushed object is scaled by a gain fitted to
-    the push's executed steps (``planner.dynamics.CalibratedDynamics``)"""
+    motion_gain: str = PLAN_MOTION_GAIN
+    """whether a learned model's predicted motion of the pushed object is scaled by gains fitted
+    to the push's executed steps (``planner.dynamics.MOTION_GAINS``: ``off``, ``online``: one
+    gain, ``contact``: one per kind of contact; ``planner.dynamics.CalibratedDynamics``)"""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
@@ -129,8 +130,10 @@ class PushResult:
     diagnostics: dict = field(default_factory=dict)
     """exploitation diagnostics over the executed steps (``planner.diagnostics``)"""
     motion_gain: float | None = None
-    """the gain a learned model's predicted motion was scaled by at the end
-    (``PushConfig.motion_gain``; None: not scaled)"""
+    """the gain a learned model's predicted motion was scaled by at the end (of central pushes
+    with ``PushConfig.motion_gain`` ``contact``; None: not scaled)"""
+    glancing_gain: float | None = None
+    """the gain of glancing pushes at the end (``contact``; None otherwise)"""
     records: list[StepRecord] = field(default_factory=list)
 
     def summary(self) -> dict:
@@ -183,8 +186,8 @@ def push_planner(cfg: PushConfig, scenario: Scenario, world: PushWorld) -> Plann
             feedback=cfg.feedback,
             contact_margin_m=cfg.contact_margin_m,
         )
-        if cfg.motion_gain:
-            dynamics = CalibratedDynamics(dynamics)
+        if cfg.motion_gain != "off":
+            dynamics = CalibratedDynamics(dynamics, cfg.motion_gain)
     return make_planner(
         cfg.planner,
         dynamics,
@@ -260,6 +263,7 @@ def run_push(
             if reached():
                 break
             before, seen = obs.object_poses[cfg.object_index].copy(), obs.pusher_seen
+            pusher_before = obs.pusher_xy_m.copy()
             action, info = planner.plan(plan_state(obs, world, cfg.object_index))
             if cfg.action_noise > 0:
                 action = np.clip(action + cfg.action_noise * bound * noise.standard_normal(2),
@@ -271,7 +275,13 @@ def run_push(
             viz.step(obs, info)
             pose = obs.object_poses[cfg.object_index]
             if calibrated is not None:
-                calibrated.observe(before, info.predicted_poses[0], pose, radius)
+                calibrated.observe(
+                    before,
+                    info.predicted_poses[0],
+                    pose,
+                    radius,
+                    (pusher_before, obs.pusher_xy_m.copy()),
+                )
             figures = step_figures(before, info.predicted_poses[0], pose, goal)
             rec = StepRecord(step + 1, action.tolist(), pose.tolist(), *errors(), info.wall_ms,
                              info.predicted_poses.tolist(), **figures,
@@ -301,5 +311,6 @@ def run_push(
         pushed_object=asdict(world.objects[cfg.object_index]),
         diagnostics=exploitation([asdict(r) for r in records]),
         motion_gain=None if calibrated is None else calibrated.gain,
+        glancing_gain=None if calibrated is None else calibrated.glancing_gain,
         records=records,
     )

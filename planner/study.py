@@ -88,8 +88,8 @@ class StudyConfig:
     """how the planner feeds a learned model's predictions back (``se3net.rollout.FEEDBACK``)"""
     contact_margin_m: float | None = CONTACT_MARGIN_M
     """the planner's contact gate (``planner.dynamics.contact_gate``; None: off)"""
-    motion_gain: bool = PLAN_MOTION_GAIN
-    """the planner's online motion gain (``planner.dynamics.CalibratedDynamics``)"""
+    motion_gain: str = PLAN_MOTION_GAIN
+    """the planner's motion gain (``planner.dynamics.MOTION_GAINS``)"""
     shaping_fade: str = CostConfig.shaping_fade
     """where predicted motion fades the cost's shaping term (``CostConfig.shaping_fade``)"""
     edge_weight: float = CostConfig.w_edge

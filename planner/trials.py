@@ -29,6 +29,7 @@ from planner.dynamics import (
     PLAN_MOTION_GAIN,
     ROLLOUT_BEFORE_OPTIONS,
     check_planner_rollout,
+    recorded_motion_gain,
 )
 from planner.loop import PushConfig, push_scenario, run_push
 from scenarios import InputError, Scenario, check_seed, load_scenario
@@ -65,8 +66,9 @@ class TrialsConfig:
     contact_margin_m: float | None = CONTACT_MARGIN_M
     """within what margin of touch a learned model's predicted motions count
     (``planner.dynamics.contact_gate``; None: all of them)"""
-    motion_gain: bool = PLAN_MOTION_GAIN
-    """a learned model's predicted motion scaled by a gain fitted online (``PushConfig``)"""
+    motion_gain: str = PLAN_MOTION_GAIN
+    """a learned model's predicted motion scaled by gains fitted online
+    (``planner.dynamics.MOTION_GAINS``, ``PushConfig``)"""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
@@ -189,8 +191,9 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     for outcome, won in (("successes", True), ("failures", False)):
         steps = (r["per_step"] for r in records if "per_step" in r and r["success_tight"] == won)
         out[f"pusher_unseen_{outcome}"] = unseen_share(steps)
-    gains = [r["motion_gain"] for r in records if r.get("motion_gain") is not None]
-    out["median_motion_gain"] = float(np.median(gains)) if gains else None
+    for key in ("motion_gain", "glancing_gain"):  # records from before them have neither
+        gains = [r[key] for r in records if r.get(key) is not None]
+        out[f"median_{key}"] = float(np.median(gains)) if gains else None
     # where generalisation stops: successes by the pushed object's shape and mass
     pushed = [r for r in records if "pushed_object" in r]
     out["by_shape"] = tally(pushed, lambda o: o["shape"])
@@ -304,6 +307,7 @@ def _compared(meta: dict) -> dict:
     planner with its world's reset seed."""
     out = {k: v for k, v in meta.items() if k != "n"}
     out |= {k: meta.get(k, before) for k, before in ROLLOUT_BEFORE_OPTIONS.items()}
+    out["motion_gain"] = recorded_motion_gain(out["motion_gain"])
     if meta.get("model") in ("oracle", "no-motion"):
         for k in ROLLOUT_BEFORE_OPTIONS:
             del out[k]

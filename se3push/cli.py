@@ -147,7 +147,13 @@ def _cmd_trials(args: argparse.Namespace) -> int:
             else ""
         )
         + (
-            f"  motion gain             {s['median_motion_gain']:.2f} (median at the end)\n"
+            f"  motion gain             {s['median_motion_gain']:.2f} (median at the end"
+            + (
+                f"; glancing pushes {s['median_glancing_gain']:.2f}"
+                if s.get("median_glancing_gain") is not None
+                else ""
+            )
+            + ")\n"
             if s.get("median_motion_gain") is not None
             else ""
         )
@@ -274,10 +280,6 @@ def _split_option(s: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
-MOTION_GAINS = ("online", "off")
-"""``--motion-gain``'s choices: the gain fitted online, or none"""
-
-
 def _shared_planning_options(s: argparse.ArgumentParser) -> None:
     """The planner's settings that study and improve share with trials and plan-push:
     ``--horizon``, ``--shaping-fade``, ``--keepout-weight``, ``--near-goal`` and
@@ -285,7 +287,7 @@ def _shared_planning_options(s: argparse.ArgumentParser) -> None:
     ``--feedback``, ``--contact-margin`` and ``--motion-gain``."""
     from planner.base import HORIZON_BEFORE, PlannerConfig
     from planner.cost import COST_FLAGS, SHAPING_FADES, CostConfig
-    from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK, PLAN_MOTION_GAIN
+    from planner.dynamics import CONTACT_MARGIN_M, MOTION_GAINS, PLAN_FEEDBACK, PLAN_MOTION_GAIN
 
     s.add_argument(
         "--horizon", type=int, default=PlannerConfig.horizon,
@@ -328,10 +330,11 @@ def _shared_planning_options(s: argparse.ArgumentParser) -> None:
         f"it (default {CONTACT_MARGIN_M}; off: every predicted motion counts)",
     )  # fmt: skip
     s.add_argument(
-        "--motion-gain", choices=MOTION_GAINS, default=MOTION_GAINS[not PLAN_MOTION_GAIN],
+        "--motion-gain", choices=MOTION_GAINS, default=PLAN_MOTION_GAIN,
         help="online: scale a learned model's predicted motion of the pushed object by a gain "
-        "fitted to how far the executed steps moved it (off: the model's own motion; default "
-        f"{MOTION_GAINS[not PLAN_MOTION_GAIN]})",
+        "fitted to how far the executed steps moved it; contact: by one such gain for pushes "
+        "at the object's centre and one for glancing ones (off: the model's own motion; "
+        f"default {PLAN_MOTION_GAIN})",
     )  # fmt: skip
 
 
@@ -339,7 +342,7 @@ def _rollout_settings(args: argparse.Namespace) -> dict:
     """How the planner rolls a learned model, from :func:`_shared_planning_options`' flags:
     ``feedback``, ``contact_margin_m`` and ``motion_gain``, as the configs name them."""
     return {"feedback": args.feedback, "contact_margin_m": args.contact_margin,
-            "motion_gain": args.motion_gain == "online"}  # fmt: skip
+            "motion_gain": args.motion_gain}  # fmt: skip
 
 
 def _planning_options(s: argparse.ArgumentParser) -> None:
@@ -811,7 +814,12 @@ def _cmd_plan_push(args: argparse.Namespace) -> int:
         )
         if result.others_moved_m is not None:
             print(f"the other objects moved at most {result.others_moved_m * 100:.1f} cm")
-        if result.motion_gain is not None:
+        if result.glancing_gain is not None:
+            print(
+                f"the model's predicted motion was scaled by {result.motion_gain:.2f} for "
+                f"central pushes and {result.glancing_gain:.2f} for glancing ones at the end"
+            )
+        elif result.motion_gain is not None:
             print(f"the model's predicted motion was scaled by {result.motion_gain:.2f} at the end")
     return 0 if result.success_tight else 1
 

@@ -57,12 +57,12 @@ def test_the_policy_fits_the_motion_gain_as_the_loop_does(monkeypatch):
     import planner.loop as loop
     from planner import PlannerConfig
 
-    pushed = _half_oracle_push(monkeypatch, True)
+    pushed = _half_oracle_push(monkeypatch, "online")
     env = gymnasium.make(ENV_ID, scenario="tiny", max_steps=30)
     monkeypatch.setattr(loop, "make_dynamics", lambda *a, **k: _HalfOracle(env.unwrapped.world))
     obs, _ = env.reset(options={"world_seed": 0, "goal": _nearby_goal(-0.08)})
     planning = PlannerConfig(horizon=4, samples=12, iterations=2)  # _half_oracle_push's
-    policy = MPCPolicy(env, model="default", planning=planning, motion_gain=True)
+    policy = MPCPolicy(env, model="default", planning=planning, motion_gain="online")
     actions = []
     while True:
         actions.append(policy(obs).tolist())

@@ -193,7 +193,7 @@ def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(
     (tmp_path / "imp" / "config.json").write_text(json.dumps(meta))
     with pytest.raises(ValueError, match="feedback: folder has 'grid'"):
         run_improve(cfg, tmp_path / "imp")
-    before = dataclasses.replace(cfg, feedback="grid", contact_margin_m=None, motion_gain=False)
+    before = dataclasses.replace(cfg, feedback="grid", contact_margin_m=None, motion_gain="off")
     with pytest.raises(ValueError, match="shaping_fade: folder has 'everywhere'"):
         run_improve(before, tmp_path / "imp")
     before = dataclasses.replace(before, shaping_fade="everywhere")
@@ -211,7 +211,7 @@ def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(
     assert run_improve(before, tmp_path / "imp")["rounds"]
     trials = json.loads((tmp_path / "imp" / "round_0" / "heldout" / "tiny" / "config.json")
                         .read_text())  # fmt: skip
-    assert trials["cost"]["shaping_fade"] == "everywhere" and trials["motion_gain"] is False
+    assert trials["cost"]["shaping_fade"] == "everywhere" and trials["motion_gain"] == "off"
     assert trials["planning"]["horizon"] == 4 and trials["cost"]["w_edge"] == 0.0
     assert trials["cost"]["w_keepout"] == 0.0 and trials["cost"]["near_goal_m"] == 0.0
 

@@ -224,8 +224,8 @@ def test_the_loop_fits_the_motion_gain_to_a_model_that_predicts_half_the_motion(
     """The executed steps teach the loop's gain that the model predicts half of each motion:
     it ends near 2, and the steps planned with it predict the motion that then happens (the
     model alone predicts half of it)."""
-    fitted = _half_oracle_push(monkeypatch, True)
-    alone = _half_oracle_push(monkeypatch, False)
+    fitted = _half_oracle_push(monkeypatch, "online")
+    alone = _half_oracle_push(monkeypatch, "off")
     assert alone.motion_gain is None and 1.7 < fitted.motion_gain < 2.05
 
     def ratio(result):  # predicted over actual motion, over the steps that moved the object
@@ -235,3 +235,13 @@ def test_the_loop_fits_the_motion_gain_to_a_model_that_predicts_half_the_motion(
 
     assert ratio(alone) == pytest.approx(0.5, abs=0.05)
     assert ratio(fitted) == pytest.approx(1.0, abs=0.15)
+
+
+def test_the_loop_fits_both_kinds_of_contact_to_a_model_that_predicts_half_the_motion(
+    monkeypatch,
+):
+    """With a gain per kind of contact, the executed steps of both kinds teach theirs that the
+    half-motion model predicts half: each ends well above 1 (the glancing one, fitted to fewer
+    steps, nearer its prior)."""
+    per_kind = _half_oracle_push(monkeypatch, "contact")
+    assert 1.7 < per_kind.motion_gain < 2.05 and 1.5 < per_kind.glancing_gain < 2.05

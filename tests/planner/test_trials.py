@@ -347,25 +347,42 @@ def test_the_contact_margin_makes_other_trials_of_a_learned_model_only(tmp_path)
 
 def test_a_folder_from_before_the_motion_gain_continues_only_without_it(tmp_path):
     """Records from before ``--motion-gain`` planned with the model's own motion: such a folder
-    is refused with the gain and extends without it; the simulator backends ignore it, and
+    is refused with a gain and extends without it; the simulator backends ignore it, and
     the setting is in the folder's config and on the command line."""
-    cfg = TrialsConfig("single_box", n=1, model="default", max_steps=1, motion_gain=False)
+    cfg = TrialsConfig("single_box", n=1, model="default", max_steps=1, motion_gain="off")
     run_trials(cfg, tmp_path / "old", progress=False)
     meta = json.loads((tmp_path / "old" / "config.json").read_text())
-    assert meta.pop("motion_gain") is False
+    assert meta.pop("motion_gain") == "off"
     (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
-    with pytest.raises(InputError, match="motion_gain: folder has False, this run asks for True"):
-        run_trials(replace(cfg, n=2, motion_gain=True), tmp_path / "old", progress=False)
+    with pytest.raises(InputError, match="motion_gain: folder has 'off', this run asks for 'onl"):
+        run_trials(replace(cfg, n=2, motion_gain="online"), tmp_path / "old", progress=False)
     assert run_trials(replace(cfg, n=2), tmp_path / "old", progress=False)["trials"] == 2
     still = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1)
     run_trials(still, tmp_path / "still", progress=False)
-    assert run_trials(replace(still, n=2, motion_gain=True), tmp_path / "still",
+    assert run_trials(replace(still, n=2, motion_gain="contact"), tmp_path / "still",
                       progress=False)["trials"] == 2  # fmt: skip
-    with pytest.raises(InputError, match="motion_gain is True or False"):
-        replace(cfg, motion_gain="off")  # a string would switch it on
+    with pytest.raises(InputError, match="--motion-gain must be one of off, online, contact"):
+        replace(cfg, motion_gain=True)  # what the setting was before it had three values
     assert main(["trials", "--scenario", "tiny", "--n", "1", "--model", "no-motion",
-                 "--motion-gain", "off", "--out", str(tmp_path / "cli")]) == 0  # fmt: skip
-    assert json.loads((tmp_path / "cli" / "config.json").read_text())["motion_gain"] is False
+                 "--motion-gain", "contact", "--out", str(tmp_path / "cli")]) == 0  # fmt: skip
+    assert json.loads((tmp_path / "cli" / "config.json").read_text())["motion_gain"] == "contact"
+
+
+def test_a_folder_that_recorded_the_motion_gain_as_true_or_false_continues_as_online_or_off(
+    tmp_path,
+):
+    """Before the per-contact gain, folders recorded the one gain as true (``online``) or false
+    (``off``): each extends with its own setting and is refused with the others."""
+    cfg = TrialsConfig("single_box", n=1, model="default", max_steps=1)
+    for recorded, setting in ((True, "online"), (False, "off")):
+        folder = tmp_path / setting
+        run_trials(replace(cfg, motion_gain=setting), folder, progress=False)
+        meta = json.loads((folder / "config.json").read_text())
+        (folder / "config.json").write_text(json.dumps({**meta, "motion_gain": recorded}))
+        with pytest.raises(InputError, match=f"folder has '{setting}', this run asks for 'cont"):
+            run_trials(replace(cfg, n=2, motion_gain="contact"), folder, progress=False)
+        run = run_trials(replace(cfg, n=2, motion_gain=setting), folder, progress=False)
+        assert run["trials"] == 2
 
 
 def test_a_folder_from_before_the_shaping_fade_continues_only_as_everywhere(tmp_path):
