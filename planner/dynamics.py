@@ -434,8 +434,8 @@ class EnsembleDynamics:
 
 MOTION_GAIN_RANGES = {"online": (0.5, 4.0), "contact": (0.1, 4.0)}
 """the least and most a :class:`CalibratedDynamics` scales its model's predicted motion by, for
-each of :data:`MOTION_GAINS` that scales it: a glancing push's gain goes lower (the model
-predicts millimetres of motion where the object hardly moves)"""
+each of :data:`MOTION_GAINS` that scales it: a glancing push's gain may go lower (in some
+trials it settled at 0.1–0.3, the model predicting millimetres where the object hardly moved)"""
 MOTION_GAIN_PRIOR_M = 0.005
 """how much observed motion (m, footprint displacement) the gain's prior of 1 weighs as: about
 one step's push of the object"""
@@ -495,7 +495,7 @@ class CalibratedDynamics:
         self.inner, self.mode = inner, mode
         self.name, self.differentiable = inner.name, inner.differentiable
         self.model = getattr(inner, "model", None)  # what the visualiser shows
-        kinds = 2 if mode == "contact" else 1
+        kinds = 2 if mode == "contact" else 1  # contact: (glancing, central); online: (one,)
         self.gains, self._num, self._den = [1.0] * kinds, [0.0] * kinds, [0.0] * kinds
 
     @property
