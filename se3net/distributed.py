@@ -12,9 +12,8 @@ those variables (a plain ``se3push train``) this is one process of one.
 
 from __future__ import annotations
 
-import gc
 import os
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -32,9 +31,6 @@ class Ranks:
     """number of processes"""
     local_rank: int = 0
     """rank on this machine (which GPU it uses)"""
-    store: object = field(default=None, compare=False, repr=False)
-    """the rendezvous store the processes joined through (None for one): it outlives the
-    process group, so that :func:`leave` can order the processes' leaving"""
 
     @property
     def main(self) -> bool:
@@ -87,50 +83,29 @@ def join(device: str, batch: int) -> Ranks:
         )
     import torch.distributed as dist
 
-    if dist.is_initialized():
-        return ranks
-    backend = "nccl" if device.startswith("cuda") else "gloo"
-    if backend == "nccl":
-        torch.cuda.set_device(rank_device(device, ranks))
-    # the store from the rendezvous init_process_group would make itself (torchrun's agent's,
-    # or one rank 0 hosts), kept here for leave()
-    store, _, _ = next(dist.rendezvous("env://", ranks.rank, ranks.world))
-    dist.init_process_group(backend=backend, store=store, rank=ranks.rank, world_size=ranks.world)
-    return replace(ranks, store=store)
-
-
-LEFT_KEY = "se3push/left/"
-"""the rendezvous store's key, with a rank, that says that process has left the group"""
+    if not dist.is_initialized():
+        backend = "nccl" if device.startswith("cuda") else "gloo"
+        if backend == "nccl":
+            torch.cuda.set_device(rank_device(device, ranks))
+        dist.init_process_group(backend=backend)
+    return ranks
 
 
 def leave(ranks: Ranks, *, finished: bool) -> None:
     """Leave the process group joined by :func:`join` (nothing for one process).
 
-    ``finished``: every process got to the end of its work. They then wait for each other,
-    and leave one at a time, the highest rank first, each once the one above it has (told
-    over the rendezvous store, which outlives the group; the store's host leaves last). A
-    process that tore the group down while another still wrote its checkpoint made that one
-    abort at exit (gloo: "terminate called without an active exception"), so torchrun failed
-    a run that had finished; waiting at a barrier first made that rarer but not gone (1 of 4
-    test runs of a fresh clone), the teardowns then racing each other. The garbage collection
-    first frees what a finished run left holding the group (DistributedDataParallel sits in
-    a reference cycle, which would otherwise go only at the interpreter's exit). After an
-    error there is no waiting (the others may never get there)."""
-    if ranks.world == 1:
-        return
-    import torch.distributed as dist
+    ``finished``: every process got to the end of its work. They then wait for each other
+    before the group goes: a process that tore the group down while another still wrote its
+    checkpoint made that one abort at exit (gloo: "terminate called without an active
+    exception"), so torchrun failed a run that had finished. After an error there is no
+    waiting (the others may never get there)."""
+    if ranks.world > 1:
+        import torch.distributed as dist
 
-    if not dist.is_initialized():
-        return
-    ordered = finished and ranks.store is not None  # None: the group was not join()'s
-    if finished:
-        dist.barrier()
-        gc.collect()
-    if ordered and ranks.rank + 1 < ranks.world:
-        ranks.store.wait([f"{LEFT_KEY}{ranks.rank + 1}"])
-    dist.destroy_process_group()
-    if ordered:
-        ranks.store.set(f"{LEFT_KEY}{ranks.rank}", "1")
+        if dist.is_initialized():
+            if finished:
+                dist.barrier()
+            dist.destroy_process_group()
 
 
 def shard(indices: np.ndarray, ranks: Ranks) -> np.ndarray:

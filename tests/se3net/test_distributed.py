@@ -138,36 +138,3 @@ def test_torchrun_trains_with_two_processes_from_the_command_line(tiny_data, tmp
     blob = read_checkpoint(tmp_path / "r" / "last.pt")
     assert blob["train_state"]["world_size"] == 2 and blob["extra"]["examples"] == 8
     assert len((tmp_path / "r" / "metrics.jsonl").read_text().splitlines()) == 1
-
-
-def test_finished_processes_leave_one_at_a_time_the_store_s_host_last(monkeypatch):
-    """After a barrier, each process waits until the one above it has left, leaves, and says
-    so over the store (rank 0, the store's host under a plain launch, leaves last); after an
-    error each leaves at once, waiting for nobody."""
-    import torch.distributed as dist
-
-    from se3net.distributed import LEFT_KEY, leave
-
-    events = []
-
-    class Store:
-        def wait(self, keys):
-            events.append(("wait", *keys))
-
-        def set(self, key, value):
-            events.append(("set", key))
-
-    monkeypatch.setattr(dist, "is_initialized", lambda: True)
-    monkeypatch.setattr(dist, "barrier", lambda: events.append(("barrier",)))
-    monkeypatch.setattr(dist, "destroy_process_group", lambda: events.append(("destroy",)))
-    for rank, expected in (
-        (0, [("barrier",), ("wait", f"{LEFT_KEY}1"), ("destroy",), ("set", f"{LEFT_KEY}0")]),
-        (1, [("barrier",), ("wait", f"{LEFT_KEY}2"), ("destroy",), ("set", f"{LEFT_KEY}1")]),
-        (2, [("barrier",), ("destroy",), ("set", f"{LEFT_KEY}2")]),
-    ):
-        events.clear()
-        leave(Ranks(rank=rank, world=3, store=Store()), finished=True)
-        assert events == expected
-    events.clear()
-    leave(Ranks(rank=0, world=3, store=Store()), finished=False)
-    assert events == [("destroy",)]
