@@ -74,7 +74,7 @@ def _cmd_data(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from se3net.distributed import ranks_from_env
+    from se3net.distributed import end_process, ranks_from_env
     from se3net.train import TrainConfig, TrainingDiverged, train
 
     data = args.data[0] if len(args.data) == 1 else tuple(args.data)
@@ -88,18 +88,22 @@ def _cmd_train(args: argparse.Namespace) -> int:
         controls=args.controls, valid_channel=args.valid_channel, full_res_head=args.full_res_head,
         feedback=args.feedback,
     )  # fmt: skip
+    ranks, code = ranks_from_env(), 0
     try:
         figures = train(cfg, resume=args.resume)
     except TrainingDiverged as err:
         print(f"error: {err}", file=sys.stderr)
-        return 1
-    if not ranks_from_env().main:  # under torchrun, rank 0 speaks for the run
-        return 0
-    print(
-        f"done: {args.out}/best.pt; last validation flow MSE "
-        f"{figures['val_flow_mse_cm2']:.4f} cm^2, ratio to no-motion {figures['val_ratio']:.3f}"
-    )
-    return 0
+        code = 1
+    else:
+        if ranks.main:  # under torchrun, rank 0 speaks for the run
+            print(
+                f"done: {args.out}/best.pt; last validation flow MSE "
+                f"{figures['val_flow_mse_cm2']:.4f} cm^2, ratio to no-motion "
+                f"{figures['val_ratio']:.3f}"
+            )
+    if ranks.world > 1:
+        end_process(code)  # not through the interpreter's exit (its docstring says why)
+    return code
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:

@@ -13,7 +13,7 @@ import torch
 
 from scenarios import InputError
 from se3net.checkpoint import read_checkpoint
-from se3net.distributed import Ranks, join, shard
+from se3net.distributed import Ranks, end_process, join, shard
 from se3net.train import TrainConfig, train
 
 
@@ -55,6 +55,7 @@ def _rank_main(rank: int, world: int, port: int, cfg: dict, resume: bool, stop_a
         tm.train(TrainConfig(**cfg), resume=resume, progress=False)
     except KeyboardInterrupt:
         pass
+    end_process(0)  # as se3push train ends a torchrun process
 
 
 def _run_ranks(cfg: dict, log: Path, *, resume=False, stop_at=None, world=2) -> None:
@@ -138,3 +139,13 @@ def test_torchrun_trains_with_two_processes_from_the_command_line(tiny_data, tmp
     blob = read_checkpoint(tmp_path / "r" / "last.pt")
     assert blob["train_state"]["world_size"] == 2 and blob["extra"]["examples"] == 8
     assert len((tmp_path / "r" / "metrics.jsonl").read_text().splitlines()) == 1
+
+
+def test_a_process_ended_past_the_interpreter_s_exit_keeps_its_status_and_its_output():
+    """``end_process`` skips the interpreter's finalization, but what the process printed to a
+    pipe (block-buffered) still arrives, and the status is the one given."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    code = "from se3net.distributed import end_process; print('done', end=''); end_process(3)"
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                         cwd=Path(__file__).resolve().parents[2])  # fmt: skip
+    assert (run.returncode, run.stdout) == (3, "done")
