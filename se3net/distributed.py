@@ -97,10 +97,10 @@ def leave(ranks: Ranks, *, finished: bool) -> None:
     """Leave the process group joined by :func:`join` (nothing for one process).
 
     ``finished``: every process got to the end of its work. They then wait for each other
-    before the group goes: a process that tore the group down while another still wrote its
-    checkpoint made that one abort at exit (gloo: "terminate called without an active
-    exception"), so torchrun failed a run that had finished. After an error there is no
-    waiting (the others may never get there)."""
+    before the group goes, so that none tears it down while another still writes its
+    checkpoint. (The wait came in against an abort at exit that it made rarer but did not
+    end; the abort's cause and its mend are :func:`end_process`'s.) After an error there is
+    no waiting (the others may never get there)."""
     if ranks.world > 1:
         import torch.distributed as dist
 
