@@ -19,7 +19,7 @@ import numpy as np
 
 from planner.diagnostics import pauses
 from planner.loop import LOOSE, TIGHT
-from planner.trials import fmt, same_trial, wilson
+from planner.trials import GROUPINGS, fmt, label_order, same_trial, wilson
 from scenarios import InputError
 from scenarios.config import differences
 
@@ -157,7 +157,12 @@ def _draw(config: dict[str, Any]) -> dict[str, Any]:
 
 
 def compare_trials(
-    a: str | Path, b: str | Path, *, tolerance: str = "tight", n: int | None = None
+    a: str | Path,
+    b: str | Path,
+    *,
+    tolerance: str = "tight",
+    n: int | None = None,
+    by: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Compare two trial folders pair by pair over the trials both hold, or the first ``n``.
 
@@ -165,6 +170,9 @@ def compare_trials(
         a, b: folders written by ``se3push trials --out`` with the same scenario and seed.
         tolerance: "tight" (2 cm, 10°) or "loose" (5 cm, 20°) success.
         n: compare trials 0..n-1 (both folders must hold them); None: every trial both hold.
+        by: names of :data:`planner.trials.GROUPINGS` (``shape``, ``size``, ``mass``): the
+            paired trials are also compared group by group of their pushed object (one group
+            per combination of the named keys), in ``groups``.
 
     Returns:
         :func:`paired_stats` of the outcomes, plus ``a``, ``b`` (folders), ``tolerance``,
@@ -177,8 +185,12 @@ def compare_trials(
 
     Raises:
         InputError: a folder is not a trial folder, the two hold different trials, they share
-            none, a folder lacks one of the first ``n``, or a bad ``tolerance`` or ``n``.
+            none, a folder lacks one of the first ``n``, a bad ``tolerance``, ``n`` or ``by``,
+            or ``by`` with records that do not say what they pushed.
     """
+    unknown = [k for k in by if k not in GROUPINGS]
+    if unknown:
+        raise InputError(f"--by takes {', '.join(GROUPINGS)}; got {', '.join(unknown)}")
     if tolerance not in TOLERANCES:
         raise InputError(f"--tolerance must be one of {', '.join(TOLERANCES)}, got {tolerance!r}")
     if n is not None and n < 1:
@@ -222,7 +234,39 @@ def compare_trials(
         out[f"median_steps_{side}"] = _median([recs[i].get("steps") for i in trials])
         out[f"median_replan_ms_{side}"] = _median([recs[i].get("replan_ms_median") for i in trials])
         out[f"median_pause_{side}"] = _median_pause([recs[i].get("per_step") for i in trials])
+    if by:
+        out["groups"] = _groups(recs_a, trials, outcomes_a, outcomes_b, by, folder=a)
     return out
+
+
+def _groups(
+    recs: dict[int, dict[str, Any]],
+    trials: list[int],
+    outcomes_a: list[bool],
+    outcomes_b: list[bool],
+    by: Sequence[str],
+    *,
+    folder: str | Path,
+) -> dict[str, dict[str, Any]]:
+    """The paired outcomes grouped by the pushed object (the same in both folders: a trial is
+    its world's reset seed), each group's ``outcomes_a``, ``outcomes_b`` and
+    :func:`paired_stats`, in sorted label order."""
+    split: dict[str, tuple[list[bool], list[bool]]] = {}
+    for i, x, y in zip(trials, outcomes_a, outcomes_b, strict=True):
+        obj = recs[i].get("pushed_object")
+        if not obj:
+            raise InputError(
+                f"{folder}: trial {i}'s record does not say what it pushed (a record from "
+                "before pushed_object was kept); --by needs it: rerun the folder's trials"
+            )
+        label = " ".join(GROUPINGS[k](obj) for k in by)
+        xs, ys = split.setdefault(label, ([], []))
+        xs.append(x)
+        ys.append(y)
+    return {
+        label: {"outcomes_a": xs, "outcomes_b": ys, **paired_stats(xs, ys)}
+        for label, (xs, ys) in sorted(split.items(), key=lambda item: label_order(item[0]))
+    }
 
 
 def _median_pause(per_step: list[list[dict] | None]) -> float | None:
@@ -252,7 +296,7 @@ def pool_comparisons(comparisons: list[dict[str, Any]]) -> dict[str, Any]:
     if len(tolerances) != 1:
         raise ValueError(f"cannot pool comparisons at different tolerances: {sorted(tolerances)}")
     first = comparisons[0]
-    return {
+    out = {
         "pairs": len(comparisons),
         "tolerance": first["tolerance"],
         "tolerance_m_deg": first["tolerance_m_deg"],
@@ -261,6 +305,15 @@ def pool_comparisons(comparisons: list[dict[str, Any]]) -> dict[str, Any]:
             [x for c in comparisons for x in c["outcomes_b"]],
         ),
     }
+    if all("groups" in c for c in comparisons):
+        labels = sorted({label for c in comparisons for label in c["groups"]}, key=label_order)
+        out["groups"] = {}
+        for label in labels:
+            parts = [c["groups"][label] for c in comparisons if label in c["groups"]]
+            xs = [x for g in parts for x in g["outcomes_a"]]
+            ys = [y for g in parts for y in g["outcomes_b"]]
+            out["groups"][label] = {"outcomes_a": xs, "outcomes_b": ys, **paired_stats(xs, ys)}
+    return out
 
 
 def _scope(c: dict[str, Any]) -> str:
@@ -282,10 +335,16 @@ def _success_line(c: dict[str, Any]) -> str:
     )
 
 
+def _group_lines(c: dict[str, Any]) -> list[str]:
+    """A line per group of a comparison made with ``by`` (none without)."""
+    return [f"  {label}: {_success_line(g)}" for label, g in c.get("groups", {}).items()]
+
+
 def format_pooled(pooled: dict[str, Any]) -> str:
-    """Two lines of a :func:`pool_comparisons` result, for the terminal."""
+    """Two lines of a :func:`pool_comparisons` result, for the terminal, and a line per group
+    where the comparisons were grouped."""
     head = f"pooled over {pooled['pairs']} pairs of folders ({_scope(pooled)})"
-    return head + "\n" + _success_line(pooled)
+    return "\n".join([head, _success_line(pooled), *_group_lines(pooled)])
 
 
 def format_comparison(c: dict[str, Any]) -> str:
@@ -298,4 +357,4 @@ def format_comparison(c: dict[str, Any]) -> str:
         f"median pause between pushes A {fmt(c['median_pause_a'], '.1f')}, "
         f"B {fmt(c['median_pause_b'], '.1f')} steps"
     )
-    return "\n".join(lines)
+    return "\n".join(lines + _group_lines(c))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -198,6 +199,7 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     pushed = [r for r in records if "pushed_object" in r]
     out["by_shape"] = tally(pushed, lambda o: o["shape"])
     out["by_mass"] = tally(pushed, mass_bin)
+    out["by_size"] = tally(pushed, size_bin)
     return out
 
 
@@ -210,6 +212,32 @@ def mass_bin(obj: dict[str, Any]) -> str:
     # the 1e-9 puts a mass on a bin edge into the bin it starts: 0.3 / 0.1 is 2.999...
     lo = math.floor(obj["mass_kg"] / MASS_BIN_KG + 1e-9) * MASS_BIN_KG
     return f"{lo:.1f}-{lo + MASS_BIN_KG:.1f} kg"
+
+
+SIZE_BIN_M = 0.02
+"""width of the pushed-size bins of trial summaries (the footprint's longer extent)"""
+
+
+def size_bin(obj: dict[str, Any]) -> str:
+    """The pushed object's size bin by its footprint's longer extent (a box's longer side, a
+    cylinder's diameter), e.g. ``"10-12 cm"`` (bins of ``SIZE_BIN_M``)."""
+    extent = max(obj["size_m"][:2])
+    lo = math.floor(extent / SIZE_BIN_M + 1e-9) * SIZE_BIN_M
+    return f"{100 * lo:.0f}-{100 * (lo + SIZE_BIN_M):.0f} cm"
+
+
+def label_order(label: str) -> list[Any]:
+    """Sort key of group labels that orders their numbers by value: ``"8-10 cm"`` before
+    ``"10-12 cm"``."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", label)]
+
+
+GROUPINGS: dict[str, Callable[[dict[str, Any]], str]] = {
+    "shape": lambda obj: obj["shape"],
+    "size": size_bin,
+    "mass": mass_bin,
+}
+"""how trials may be grouped by their pushed object (``compare --by``)"""
 
 
 def tally(
@@ -229,7 +257,7 @@ def tally(
             gains.setdefault(k, []).append(r["motion_gain"])
     for k, g in gains.items():
         rows[k]["median_motion_gain"] = float(np.median(g))
-    return dict(sorted(rows.items()))
+    return dict(sorted(rows.items(), key=lambda item: label_order(item[0])))
 
 
 def fmt(x: Any, spec: str = ".3f") -> str:

@@ -177,12 +177,12 @@ def _cmd_trials(args: argparse.Namespace) -> int:
             if len(s["by_shape"]) > 1
             else ""
         )
-        + (
-            "  by pushed mass          "
-            + ", ".join(f"{k} {v['tight']}/{v['trials']}" for k, v in s["by_mass"].items())
+        + "".join(
+            f"  by pushed {what:<13} "
+            + ", ".join(f"{k} {v['tight']}/{v['trials']}" for k, v in s[key].items())
             + "\n"
-            if len(s["by_mass"]) > 1
-            else ""
+            for what, key in (("mass", "by_mass"), ("size", "by_size"))
+            if len(s.get(key, ())) > 1  # summaries from before by_size have none
         )
         + f"wrote {args.out}/trials.jsonl, summary.json, paths.png"
     )
@@ -489,7 +489,9 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from planner.compare import compare_trials, format_comparison, format_pooled, pool_comparisons
 
     pairs = [(args.a, args.b), *(args.pair or [])]
-    results = [compare_trials(a, b, tolerance=args.tolerance, n=args.n) for a, b in pairs]
+    results = [
+        compare_trials(a, b, tolerance=args.tolerance, n=args.n, by=args.by or ()) for a, b in pairs
+    ]
     if len(results) == 1:
         print(json.dumps(results[0]) if args.json else format_comparison(results[0]))
         return 0
@@ -725,6 +727,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="another pair of folders (another scenario, say); with one or more, "
                         "each pair is compared and then all their trials pooled in one "
                         "test")  # fmt: skip
+    s.add_argument("--by", nargs="+", metavar="KEY",
+                   help="also compare group by group of the pushed object: shape, size (its "
+                        "footprint's longer extent, 2 cm bins), mass (0.1 kg bins), or several "
+                        "of them for their combinations")  # fmt: skip
     s.add_argument("--json", action="store_true", help="print the figures as JSON")
     s.set_defaults(run=_cmd_compare)
     return p

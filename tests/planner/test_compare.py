@@ -68,7 +68,7 @@ def test_no_discordant_pairs_give_p_one_and_an_interval_around_zero():
 
 
 def _write_folder(path, tight, *, loose=None, scenario="tiny", seed=0, goals=None, replan_ms=40.0,
-                  config=True, log=True, disp_mm=None):  # fmt: skip
+                  config=True, log=True, disp_mm=None, objects=None):  # fmt: skip
     """A trial folder written by hand: one record per outcome, trial i's draw fixed by i."""
     path.mkdir(parents=True)
     if config:
@@ -91,6 +91,8 @@ def _write_folder(path, tight, *, loose=None, scenario="tiny", seed=0, goals=Non
             "steps": 20 if ok else 60,
             "replan_ms_median": replan_ms,
         }
+        if objects is not None:  # trial i pushed objects[i]
+            rec["pushed_object"] = objects[i]
         if disp_mm is not None:  # every trial's steps moved the object this much
             rec["per_step"] = [{"actual_disp_m": d * 1e-3} for d in disp_mm]
         lines.append(json.dumps(rec) + "\n")
@@ -203,6 +205,41 @@ def test_pairs_of_folders_are_compared_each_and_pooled_in_one_test(folders, tmp_
     out = capsys.readouterr().out
     assert "pooled over 2 pairs of folders (53 paired trials, tight" in out
     assert "success A 39/53 (74%), B 30/53 (57%); A wins 15, loses 6" in out
+
+
+BOX_BIG = {"shape": "box", "size_m": [0.124, 0.093, 0.06], "mass_kg": 0.65}
+BOX_SMALL = {"shape": "box", "size_m": [0.105, 0.09, 0.06], "mass_kg": 0.55}
+TEE = {"shape": "T", "size_m": [0.085, 0.09, 0.05], "mass_kg": 0.55}
+
+
+def test_compare_by_the_pushed_object_splits_the_paired_trials_into_groups(tmp_path, capsys):
+    """A loses the three big boxes and wins two of the four T-shapes: the groups say where,
+    the whole set (2 wins, 3 losses) does not; pooled over two pairs, the groups pool too."""
+    objects = [BOX_BIG] * 3 + [TEE] * 4 + [BOX_SMALL]
+    tight_a = [False] * 3 + [True, True, False, True, True]
+    tight_b = [True] * 3 + [False, False, False, True, True]
+    a = _write_folder(tmp_path / "A", tight_a, objects=objects)
+    b = _write_folder(tmp_path / "B", tight_b, objects=objects)
+    assert main(["compare", str(a), str(b), "--by", "shape", "size", "--json"]) == 0
+    groups = json.loads(capsys.readouterr().out)["groups"]
+    assert list(groups) == ["T 8-10 cm", "box 10-12 cm", "box 12-14 cm"]
+    t, small, big = groups.values()
+    assert (t["n"], t["wins"], t["losses"], t["successes_a"]) == (4, 2, 0, 3)
+    assert (big["n"], big["wins"], big["losses"], big["successes_b"]) == (3, 0, 3, 3)
+    assert (small["n"], small["wins"], small["losses"]) == (1, 0, 0)
+    assert main(["compare", str(a), str(b), "--by", "mass", "--pair", str(a), str(b)]) == 0
+    out = capsys.readouterr().out
+    pooled = out[out.index("pooled") :]
+    assert "  0.5-0.6 kg: success A 8/10 (80%), B 4/10 (40%); A wins 4, loses 0" in pooled
+    assert "  0.6-0.7 kg: success A 0/6 (0%), B 6/6 (100%); A wins 0, loses 6" in pooled
+
+
+def test_compare_by_needs_records_that_say_what_they_pushed(folders, capsys):
+    err = _refused(["compare", *map(str, folders), "--by", "shape"], capsys)
+    assert "pushed_object" in err and "trial 0" in err
+    assert "--by takes shape, size, mass; got colour" in _refused(
+        ["compare", *map(str, folders), "--by", "colour"], capsys
+    )
 
 
 def test_a_damaged_folder_is_refused_in_one_line(folders, capsys):

@@ -230,24 +230,33 @@ def test_an_old_folder_of_a_shipped_model_name_is_refused_and_of_a_lone_object_e
     assert run_trials(replace(lone, n=2), tmp_path / "lone", progress=False)["trials"] == 2
 
 
-def test_summaries_count_successes_by_the_pushed_objects_shape_and_mass():
+def test_summaries_count_successes_by_the_pushed_objects_shape_mass_and_size():
     from planner.diagnostics import exploitation
     from planner.trials import summarize
 
-    def rec(shape, mass, tight, loose):
+    def rec(shape, mass, tight, loose, size=(0.08, 0.06, 0.05)):
+        obj = {"shape": shape, "mass_kg": mass, "size_m": list(size)}
         return {"success_tight": tight, "success_loose": loose, "final_pos_err_m": 0.0,
                 "final_yaw_err_deg": 0.0, "steps": 1, "replan_ms_median": 1.0,
-                "diagnostics": exploitation([]),
-                "pushed_object": {"shape": shape, "mass_kg": mass}}  # fmt: skip
+                "diagnostics": exploitation([]), "pushed_object": obj}  # fmt: skip
 
-    s = summarize([rec("T", 0.52, True, True), rec("T", 0.7, False, True),
-                   rec("box", 0.3, False, False), rec("box", 0.58, True, True)])  # fmt: skip
+    s = summarize([rec("T", 0.52, True, True, (0.07, 0.095, 0.05)),
+                   rec("T", 0.7, False, True, (0.09, 0.08, 0.05)),
+                   rec("box", 0.3, False, False, (0.06, 0.124, 0.05)),
+                   rec("box", 0.58, True, True, (0.10, 0.09, 0.05))])  # fmt: skip
     assert s["by_shape"] == {"T": {"tight": 1, "loose": 2, "trials": 2},
                              "box": {"tight": 1, "loose": 1, "trials": 2}}  # fmt: skip
     # 0.3 kg is a bin's lower edge, though 0.3 / 0.1 is 2.9999999999999996 in floats
     assert s["by_mass"] == {"0.3-0.4 kg": {"tight": 0, "loose": 0, "trials": 1},
                             "0.5-0.6 kg": {"tight": 2, "loose": 2, "trials": 2},
                             "0.7-0.8 kg": {"tight": 0, "loose": 1, "trials": 1}}  # fmt: skip
+    # by the footprint's longer side (x or y, never the height), 10 cm on the bin it starts,
+    # the bins in the order of their sizes, not of their text
+    assert list(s["by_size"].items()) == [
+        ("8-10 cm", {"tight": 1, "loose": 2, "trials": 2}),
+        ("10-12 cm", {"tight": 1, "loose": 1, "trials": 1}),
+        ("12-14 cm", {"tight": 0, "loose": 0, "trials": 1}),
+    ]
     assert s["median_motion_gain"] is None
     fitted = [{**rec("box", 0.3, True, True), "motion_gain": g} for g in (1.0, 2.0, 4.0)]
     s = summarize(fitted + [{**rec("T", 0.3, True, True), "motion_gain": None}])
