@@ -112,11 +112,13 @@ def test_datasets_store_every_shape_as_the_world_drew_it(tmp_path):
 
 def test_the_held_out_objects_lie_outside_the_training_ranges():
     """Every object of heldout_objects is of a family household never draws or beyond its
-    sizes and masses, and household's own objects are never flagged."""
+    sizes and masses; household's own objects are never flagged, nor are household_large's
+    (the generalist's fine-tuning data: household's largest boxes, inside its ranges)."""
     from sim.shapes import outside_ranges
 
     train, held = load_scenario("household"), load_scenario("heldout_objects")
-    for scenario, outside in ((held, True), (train, False)):
+    large = load_scenario("household_large")
+    for scenario, outside in ((held, True), (train, False), (large, False)):
         world = PushWorld(scenario)
         for seed in range(25):
             world.reset(seed)
