@@ -250,7 +250,7 @@ def _groups(
 ) -> dict[str, dict[str, Any]]:
     """The paired outcomes grouped by the pushed object (the same in both folders: a trial is
     its world's reset seed), each group's ``outcomes_a``, ``outcomes_b`` and
-    :func:`paired_stats`, in sorted label order."""
+    :func:`paired_stats`, in the order of :func:`planner.trials.label_order`."""
     split: dict[str, tuple[list[bool], list[bool]]] = {}
     for i, x, y in zip(trials, outcomes_a, outcomes_b, strict=True):
         obj = recs[i].get("pushed_object")

@@ -197,9 +197,8 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
         out[f"median_{key}"] = float(np.median(gains)) if gains else None
     # where generalisation stops: successes by the pushed object's shape and mass
     pushed = [r for r in records if "pushed_object" in r]
-    out["by_shape"] = tally(pushed, lambda o: o["shape"])
-    out["by_mass"] = tally(pushed, mass_bin)
-    out["by_size"] = tally(pushed, size_bin)
+    for key, group in GROUPINGS.items():
+        out[f"by_{key}"] = tally(pushed, group)
     return out
 
 
