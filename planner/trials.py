@@ -195,7 +195,7 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     for key in ("motion_gain", "glancing_gain"):  # records from before them have neither
         gains = [r[key] for r in records if r.get(key) is not None]
         out[f"median_{key}"] = float(np.median(gains)) if gains else None
-    # where generalisation stops: successes by the pushed object's shape and mass
+    # where generalisation stops: successes by the pushed object's shape, size and mass
     pushed = [r for r in records if "pushed_object" in r]
     for key, group in GROUPINGS.items():
         out[f"by_{key}"] = tally(pushed, group)

@@ -182,7 +182,7 @@ def _cmd_trials(args: argparse.Namespace) -> int:
             + ", ".join(f"{k} {v['tight']}/{v['trials']}" for k, v in s[key].items())
             + "\n"
             for what, key in (("mass", "by_mass"), ("size", "by_size"))
-            if len(s.get(key, ())) > 1  # summaries from before by_size have none
+            if len(s[key]) > 1
         )
         + f"wrote {args.out}/trials.jsonl, summary.json, paths.png"
     )
