@@ -264,8 +264,18 @@ def _groups(
         xs.append(x)
         ys.append(y)
     return {
-        label: {"outcomes_a": xs, "outcomes_b": ys, **paired_stats(xs, ys)}
+        label: _group(xs, ys)
         for label, (xs, ys) in sorted(split.items(), key=lambda item: label_order(item[0]))
+    }
+
+
+def _group(outcomes_a: list[bool], outcomes_b: list[bool]) -> dict[str, Any]:
+    """One group of a grouped comparison: its paired outcomes (to pool) and their
+    :func:`paired_stats`."""
+    return {
+        "outcomes_a": outcomes_a,
+        "outcomes_b": outcomes_b,
+        **paired_stats(outcomes_a, outcomes_b),
     }
 
 
@@ -312,7 +322,7 @@ def pool_comparisons(comparisons: list[dict[str, Any]]) -> dict[str, Any]:
             parts = [c["groups"][label] for c in comparisons if label in c["groups"]]
             xs = [x for g in parts for x in g["outcomes_a"]]
             ys = [y for g in parts for y in g["outcomes_b"]]
-            out["groups"][label] = {"outcomes_a": xs, "outcomes_b": ys, **paired_stats(xs, ys)}
+            out["groups"][label] = _group(xs, ys)
     return out
 
 
