@@ -6,14 +6,17 @@ transitions so far, each with exact targets: every observed point of an object m
 that object's observed planar motion (the tracker's poses), table points away from the pusher
 stay, the pusher and the arm are left out. The planner then plans with the adapted weights.
 
-    python docs/experiments/test_time_adaptation.py trials --seed 1 --iters 10 --lr 3e-4 \
-        --batch 32 --moved-only --reg 1 --out docs/results/experiments/tta/trials_b.jsonl
-    python docs/experiments/test_time_adaptation.py offline --seed 1 --n 12 \
-        --iters 10 --lr 3e-4 --batch 32 --moved-only --reg 1
+The README's figures, each about 5 minutes here (2 workers):
 
-    python docs/experiments/test_time_adaptation.py pair \
-        docs/results/experiments/tta/trials_moved_only.jsonl \
-        docs/results/trials/dev_seed1/near_goal/near_goal_heldout_objects
+    E="python docs/experiments/test_time_adaptation.py"; R=docs/results/experiments/tta
+    $E trials --seed 1 --iters 3 --lr 1e-4 --batch 16 --out $R/trials_all_steps.jsonl
+    $E trials --seed 1 --iters 10 --lr 3e-4 --batch 32 --moved-only --reg 1 \
+        --out $R/trials_moved_only.jsonl
+    $E trials --seed 1 --iters 0 --out $R/trials_unadapted.jsonl
+    $E pair $R/trials_moved_only.jsonl \
+        docs/results/trials/dev_seed1/near_goal/near_goal_heldout_objects   # and the others
+    $E offline --seed 1 --n 12 --iters 3 --lr 1e-4 --batch 16
+    $E offline --seed 1 --n 12 --iters 10 --lr 3e-4 --batch 32 --moved-only --reg 1
 
 ``trials``: closed-loop trials of ``heldout_objects`` (trial set ``--seed``), a JSON line per
 trial. ``pair``: those trials against a trial folder of the same trial set, paired
@@ -37,7 +40,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import torch  # noqa: E402
 
 import planner.loop as loop  # noqa: E402
-from planner.dynamics import PlanState  # noqa: E402
+from planner.dynamics import PlanState, to_world  # noqa: E402
 from planner.observe import plan_state  # noqa: E402
 from planner.trials import draw_trial  # noqa: E402
 from scenarios import load_scenario  # noqa: E402
@@ -56,7 +59,7 @@ def transition(stride: int, s0: PlanState, s1: PlanState, action, dt: float):
     """One training example at the network's resolution: cloud, valid, controls, targets."""
     pts, val = subsample(s0.points, stride), subsample(s0.valid, stride)
     T = s0.T_world_cam
-    world = pts.flatten(1).T @ T[:3, :3].T + T[:3, 3]
+    world = to_world(T, pts.flatten(1).T)
     target, keep = world.clone(), torch.zeros(len(world), dtype=torch.bool)
     bodies = [(s0.object_mask, s0.object_pose, s1.object_pose)]
     if s0.n_others:
