@@ -28,6 +28,7 @@ from scenarios.config import differences, scenario_dict
 from sim.camera import associated_targets
 from sim.controls import PUSHER_LAYOUT, control_layout
 from sim.explore import MODES, ExplorationConfig, ExplorationPolicy, describe_exploration
+from sim.folders import writes_folder
 from sim.jobs import Backend, run_jobs
 from sim.joint_explore import (
     JOINT_MODES,
@@ -325,18 +326,9 @@ def open_folder(out_dir: Path, ident: dict[str, Any]) -> dict[str, Any]:
 
     Raises:
         DataError: the folder holds another dataset, or files that are not a dataset's.
-        PermissionError: the folder cannot be written.
     """
     out_dir = Path(out_dir)
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        probe = out_dir / ".write-test"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as err:
-        raise PermissionError(
-            f"cannot write to {out_dir} ({err.strerror}); choose another --out folder"
-        ) from None
+    out_dir.mkdir(parents=True, exist_ok=True)  # writable: generate() holds its lock
     path = out_dir / MANIFEST
     if path.exists():
         try:
@@ -365,6 +357,7 @@ def open_folder(out_dir: Path, ident: dict[str, Any]) -> dict[str, Any]:
     return manifest
 
 
+@writes_folder(lambda a: a.arguments["out_dir"])
 def generate(
     cfg: DataConfig,
     out_dir: str | Path,
@@ -424,8 +417,13 @@ def generate(
         record(*shard)
     bar.close()
     manifest["complete"] = len(manifest["shards"]) == cfg.n_shards
+    # in shard order, not the order the workers finished them in: float sums are summed in
+    # one order, so the manifest's bytes do not depend on the workers' timing or on a resume
     manifest["stats"] = merge_stats(
-        [{k: v for k, v in s.items() if k != "sha256"} for s in manifest["shards"].values()]
+        [
+            {k: v for k, v in s.items() if k != "sha256"}
+            for _, s in sorted(manifest["shards"].items())
+        ]
     )
     atomic_write_json(out_dir / MANIFEST, manifest)
     return manifest
