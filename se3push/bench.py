@@ -218,14 +218,13 @@ def _planning_dynamics(scenario, model: str | None, device: str = "cpu"):
                          contact_margin_m=CONTACT_MARGIN_M)  # fmt: skip
 
 
-def _side_by_side_replan(args: tuple[int, str | None, bool]) -> float:
+def _side_by_side_replan(repeats: int, model: str | None, planning: bool) -> float:
     """One of several processes timing default replans at once (1 torch thread each), with
     the backend's defaults or (``planning``) the planner's."""
     import torch
 
     from planner import PlannerConfig, PushCost, make_dynamics, make_planner
 
-    repeats, model, planning = args
     torch.set_num_threads(1)
     scenario, world, state, goal = _bench_state()
     dyn = (
@@ -247,14 +246,13 @@ def bench_planner(
     gate); and the SE3-Net rollout's
     candidate-steps/s (K = samples, H = horizon of the default config). ``model``: the
     SE3-Net checkpoint timed (default: the shipped one)."""
-    import multiprocessing
-
     import torch
 
     from planner import PLANNERS, PlannerConfig, PushCost, make_dynamics, make_planner
     from scenarios import InputError
     from se3net.checkpoint import model_config
     from se3net.device import check_device
+    from sim.jobs import Backend, run_jobs
     from sim.shards import portable_path
 
     check_device(device)  # before anything is timed
@@ -288,13 +286,12 @@ def bench_planner(
 
     steps_per_s = cfg.samples * cfg.horizon / median_seconds(rollout, repeats=repeats)
     breakdown = replan_breakdown(times["cem/se3net"], repeats=repeats, device=device, model=model)
-    with multiprocessing.get_context("fork").Pool(2) as pool:
-        pair = pool.map(_side_by_side_replan, [(repeats, model, False)] * 2)
+    side_by_side = Backend(workers=2)
+    pair = list(run_jobs(_side_by_side_replan, [(repeats, model, False)] * 2, side_by_side))
     planning = make_planner("cem", _planning_dynamics(scenario, model, device),
                             PushCost(scenario, goal), scenario, cfg)  # fmt: skip
     planned_ms = 1e3 * median_seconds(lambda: planning.plan(state), repeats=repeats, warmup=2)
-    with multiprocessing.get_context("fork").Pool(2) as pool:
-        planned_pair = pool.map(_side_by_side_replan, [(repeats, model, True)] * 2)
+    planned_pair = list(run_jobs(_side_by_side_replan, [(repeats, model, True)] * 2, side_by_side))
     return {
         "se3net_model": portable_path(model) if model else "default",
         "replan_ms_median": times,

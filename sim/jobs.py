@@ -14,10 +14,15 @@ filesystem): the scenario, the model checkpoints and the output folders.
 
 from __future__ import annotations
 
+import ctypes
 import importlib.util
 import multiprocessing
 import os
+import signal
 import socket
+import sys
+import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
@@ -92,7 +97,35 @@ def torch_threads(n: int | None) -> Iterator[None]:
         torch.set_num_threads(before)
 
 
-def _init_worker(threads: int | None) -> None:
+PR_SET_PDEATHSIG = 1
+"""prctl(2) option: the signal a process gets when its parent dies (Linux)"""
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """End this process when ``parent_pid`` (the process that started it) dies, however it
+    dies, SIGKILL included: on Linux the kernel sends SIGKILL (``PR_SET_PDEATHSIG``); elsewhere a
+    daemon thread polls the parent twice a second. Ctrl-C is left to the parent, which ends the
+    workers itself, so that one interrupt gives one message, not one traceback a worker."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
+            raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
+    else:
+
+        def watch() -> None:
+            while os.getppid() == parent_pid:
+                time.sleep(0.5)
+            os._exit(1)
+
+        threading.Thread(target=watch, daemon=True, name="watch-parent").start()
+    if os.getppid() != parent_pid:  # the parent died before the signal was armed
+        os._exit(1)
+
+
+def _init_worker(threads: int | None, parent_pid: int | None = None) -> None:
+    if parent_pid is not None:
+        die_with_parent(parent_pid)
     if threads is not None:
         import torch
 
@@ -172,13 +205,18 @@ def run_jobs(
         ctx = multiprocessing.get_context("fork")
         pool = ProcessPoolExecutor(
             max_workers=backend.workers, mp_context=ctx, initializer=_init_worker,
-            initargs=(backend.threads,),
+            initargs=(backend.threads, os.getpid()),
         )  # fmt: skip
+        finished = False
         try:
             futures = [pool.submit(fn, *args) for args in jobs]
             for fut in futures if ordered else as_completed(futures):
                 yield fut.result()
+            finished = True
         finally:
-            # after an error (or a consumer that stopped reading), the jobs not yet started
-            # are dropped, so the error comes now, not after every other job has run
+            # after an error, Ctrl-C or a consumer that stopped reading, nobody reads the jobs
+            # still running: the workers end now, so the command stops now, not after them
+            if not finished:
+                for proc in list(pool._processes.values()):
+                    proc.kill()
             pool.shutdown(wait=True, cancel_futures=True)
