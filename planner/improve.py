@@ -52,6 +52,7 @@ from sim.dataset import (
     episode_stats,
     merge_stats,
 )
+from sim.folders import writes_folder
 from sim.jobs import Backend, run_jobs
 from sim.shards import atomic_write_bytes, atomic_write_json, portable_path, write_shard
 
@@ -288,6 +289,7 @@ def finetune(cfg: ImproveConfig, init: str, data: list[str], out: Path) -> str:
     return str(out / "best.pt")
 
 
+@writes_folder(lambda a: a.arguments["out"])
 def run_improve(
     cfg: ImproveConfig,
     out: str | Path,

@@ -46,6 +46,7 @@ from planner.dynamics import (
 )
 from planner.trials import TrialsConfig, fmt, run_trials, summary_cells, weights_of
 from scenarios import InputError, check_seed
+from sim.folders import writes_folder
 from sim.planar import angle_between_deg
 from sim.shards import atomic_write_bytes, atomic_write_json
 
@@ -509,6 +510,7 @@ def folder_name(label: str) -> str:
     return label.replace("/", "_").replace("=", "_")
 
 
+@writes_folder(lambda a: a.arguments["out"])
 def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[str, Any]:
     """Measure every model; write ``study.md``, ``study.json`` and ``study.png`` to ``out``.
 

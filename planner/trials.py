@@ -36,9 +36,10 @@ from planner.loop import PushConfig, push_scenario, run_push
 from scenarios import InputError, Scenario, check_seed, load_scenario
 from scenarios.config import differences
 from sim import PushWorld
+from sim.folders import writes_folder
 from sim.jobs import Backend, run_jobs
 from sim.planar import pose_errors
-from sim.shards import atomic_write_bytes, atomic_write_json
+from sim.shards import append_text, atomic_write_bytes, atomic_write_json
 
 
 @dataclass(frozen=True)
@@ -352,6 +353,7 @@ def _compared(meta: dict) -> dict:
     return out
 
 
+@writes_folder(lambda a: a.arguments["out"])
 def run_trials(
     cfg: TrialsConfig,
     out: str | Path,
@@ -418,8 +420,7 @@ def run_trials(
 
     def record(rec: dict[str, Any]) -> None:
         records[rec["trial"]] = rec
-        with open(log, "a") as f:
-            f.write(json.dumps(rec) + "\n")
+        append_text(log, json.dumps(rec) + "\n")
         bar.update(1)
         bar.set_postfix(
             success=f"{sum(r['success_tight'] for r in records.values())}/{len(records)}"

@@ -22,6 +22,7 @@ from se3net.checkpoint import DEFAULT_MODEL, load_checkpoint, model_config, refu
 from se3net.data import PushDataset, evenly_spaced, paper_noise, subsample_batch
 from se3net.metrics import FlowStats, MaskStats, true_flow
 from se3net.rollout import check_feedback, reprojection, rollout
+from sim.folders import writes_folder
 from sim.shards import atomic_write_bytes, portable_path
 
 MULTI_STEPS = 5
@@ -288,6 +289,7 @@ def save_pictures(
     return written
 
 
+@writes_folder(lambda a: a.arguments["out_dir"])
 def evaluate(
     paths: list[str | Path],
     data: str | Path,

@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -38,7 +39,8 @@ from se3net.distributed import Ranks, broadcast, join, leave, mean_over_ranks, r
 from se3net.metrics import LOSSES, FlowStats, point_loss, true_flow
 from se3net.model import ModelConfig, build_model, sharpening
 from se3net.rollout import Reprojection, check_feedback, reprojection, rollout
-from sim.shards import DataError, atomic_write_bytes, portable_path
+from sim.folders import exclusive
+from sim.shards import DataError, append_text, atomic_write_bytes, portable_path
 
 
 class TrainingDiverged(RuntimeError):
@@ -330,7 +332,9 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> d
     ranks = join(cfg.device, cfg.batch)
     finished = False
     try:
-        result = _train(cfg, ranks, resume=resume, progress=progress and ranks.main)
+        # rank 0 alone writes the run folder (the other processes of a torchrun launch read it)
+        with exclusive(cfg.out) if ranks.main else nullcontext():
+            result = _train(cfg, ranks, resume=resume, progress=progress and ranks.main)
         finished = True
         return result
     finally:
@@ -497,8 +501,7 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
                 "elapsed_s": time.time() - t0,
                 "examples": done * cfg.batch,
             }
-            with open(out / "metrics.jsonl", "a") as f:
-                f.write(json.dumps(figures) + "\n")
+            append_text(out / "metrics.jsonl", json.dumps(figures) + "\n")
             score = figures["val_rollout_loss" if cfg.rollout_steps > 1 else "val_flow_mse_cm2"]
             if score < best:
                 best = score

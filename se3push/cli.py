@@ -9,6 +9,7 @@ its traceback (exit code 1).
 from __future__ import annotations
 
 import argparse
+import gc
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -737,11 +738,29 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _run(run: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
+    from sim.folders import unwritable
+
     try:
         return run(args)
     except USER_ERRORS as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    except OSError as err:  # a full, read-only or forbidden folder is the user's to fix
+        if (refused := unwritable(err)) is None:
+            raise
+        print(f"error: {refused}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        pass
+    # after the except block, so that the interrupted frames are gone and their progress bars
+    # have drawn their last line: the message is the last line
+    gc.collect()
+    print(
+        "interrupted: run the same command again to continue where it stopped "
+        "(train: with --resume)",
+        file=sys.stderr,
+    )
+    return 130
 
 
 def _plan_push_parser() -> argparse.ArgumentParser:

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from scenarios import InputError
+from sim.folders import unwritable
 
 FIXED_TIME = (1980, 1, 1, 0, 0, 0)
 
@@ -39,16 +40,31 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` via a temporary file in the same folder, fsync, rename."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException as err:  # a full disk, say: no partial file is left, under any name
+        tmp.unlink(missing_ok=True)
+        if isinstance(err, OSError) and (refused := unwritable(err, path.parent)) is not None:
+            raise refused from err
+        raise
     dir_fd = os.open(path.parent, os.O_RDONLY)
     try:
         os.fsync(dir_fd)
     finally:
         os.close(dir_fd)
+
+
+def append_text(path: Path, text: str) -> None:
+    """Append ``text`` to ``path`` (a log whose reader skips a line cut short)."""
+    try:
+        with open(path, "a") as f:
+            f.write(text)
+    except OSError as err:
+        raise (unwritable(err, Path(path).parent) or err) from err
 
 
 def atomic_write_json(path: Path, obj: Any) -> None:
