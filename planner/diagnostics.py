@@ -12,14 +12,12 @@ progress toward the goal each implies. Over a trial (or pooled over many) that g
 - progress ratio: predicted over actual progress toward the goal position, summed over the
   steps (1 is an honest model; above 1 the planner is being flattered).
 
-And how the planner spends its steps: the *pauses*, runs of still steps between two steps
-that moved the object, are the steps it took to get back behind the object and push again
-(a planner shunning the short way round makes them long).
+Pooled over trials in ``evaluation.diagnostics``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -63,7 +61,7 @@ def step_figures(
     }
 
 
-def _rates(counts: dict[str, Any]) -> dict[str, Any]:
+def rates(counts: dict[str, Any]) -> dict[str, Any]:
     """Add the three ratios to summed counts (None where the denominator is empty)."""
     still, moved, actual = counts["still_steps"], counts["moved_steps"], counts["actual_progress_m"]
     return {
@@ -81,51 +79,12 @@ def exploitation(steps: Sequence[dict[str, float]]) -> dict[str, Any]:
     pred = np.array([s["predicted_disp_m"] for s in steps], dtype=float)
     act = np.array([s["actual_disp_m"] for s in steps], dtype=float)
     still, moved = act < STILL_M, act > PUSHED_M
-    return _rates(
+    return rates(
         {
             "still_steps": int(still.sum()),
             "phantom_steps": int((still & (pred > PHANTOM_M)).sum()),
             "moved_steps": int(moved.sum()),
             "missed_steps": int((moved & (pred < MISSED_M)).sum()),
             **{k: float(sum(s[k] for s in steps)) for k in SUM_KEYS},
-        }
-    )
-
-
-def path_efficiency(trials: Iterable[Sequence[dict[str, float]]]) -> float | None:
-    """How directly the pushes carried the object: of the distance it travelled, the share that
-    brought it closer to the goal position, pooled over trials (the summed actual progress
-    over the summed actual displacement of their :func:`step_figures`). 1 is a straight line
-    to the goal; a planner whose model turns the pushes wrong moves the object as far per
-    step but wanders. None where the object never moved."""
-    progress = path = 0.0
-    for steps in trials:
-        progress += sum(s["actual_progress_m"] for s in steps)
-        path += sum(s["actual_disp_m"] for s in steps)
-    return progress / path if path > MIN_PROGRESS_M else None
-
-
-def unseen_share(trials: Iterable[Sequence[dict[str, Any]]]) -> float | None:
-    """Of the steps planned, pooled over trials, the share planned while the camera did not
-    see the pusher (``pusher_seen`` of the per-step records): a learned model that cannot see
-    the pusher predicts little from it. None where no step records it (older records)."""
-    seen = [s["pusher_seen"] for steps in trials for s in steps if "pusher_seen" in s]
-    return 1.0 - sum(seen) / len(seen) if seen else None
-
-
-def pauses(actual_disp_m: Sequence[float]) -> list[int]:
-    """The lengths of the runs of still steps (below ``STILL_M``) between two steps that moved
-    the object, over one trial's actual displacements."""
-    moved = [i for i, d in enumerate(actual_disp_m) if d >= STILL_M]
-    return [b - a - 1 for a, b in zip(moved, moved[1:], strict=False) if b - a > 1]
-
-
-def pooled(per_trial: Iterable[dict[str, Any]]) -> dict[str, Any]:
-    """Pool :func:`exploitation` results of several trials (sums of counts, then the rates)."""
-    per_trial = list(per_trial)
-    return _rates(
-        {
-            **{k: int(sum(t[k] for t in per_trial)) for k in COUNT_KEYS},
-            **{k: float(sum(t[k] for t in per_trial)) for k in SUM_KEYS},
         }
     )

@@ -7,11 +7,20 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import torch
 
-from planner import Planner, PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
+from planner import (
+    PlanInfo,
+    Planner,
+    PlannerConfig,
+    PushCost,
+    make_dynamics,
+    make_planner,
+    plan_state,
+)
 from planner.cost import CostConfig
 from planner.diagnostics import STEP_FIGURES, exploitation, step_figures
 from planner.dynamics import (
@@ -21,7 +30,6 @@ from planner.dynamics import (
     CalibratedDynamics,
     check_planner_rollout,
 )
-from planner.viz import MeshcatVisualiser, NullVisualiser
 from scenarios import InputError, Scenario, check_seed, load_scenario
 from se3net.device import check_device
 from sim import Observation, PushWorld
@@ -32,6 +40,22 @@ TIGHT = (0.02, 10.0)
 LOOSE = (0.05, 20.0)
 """loose success: within 5 cm and 20 degrees"""
 MODELS = ("default", "oracle", "no-motion", "a checkpoint path", "or checkpoints joined by +")
+
+
+class NullVisualiser:
+    """Does nothing: the loop never checks whether visualisation is on. A visualiser is any
+    object with these three methods (``integrations.viz.MeshcatVisualiser``)."""
+
+    frames = 0
+
+    def start(self, world: PushWorld, obs: Observation, goal: np.ndarray, **_: Any) -> None:
+        pass
+
+    def step(self, obs: Observation, info: PlanInfo) -> None:
+        pass
+
+    def finish(self) -> None:
+        pass
 
 
 @dataclass(frozen=True)
@@ -214,7 +238,7 @@ def run_push(
     cfg: PushConfig,
     *,
     on_step: Callable[[StepRecord], None] | None = None,
-    viz: NullVisualiser | MeshcatVisualiser | None = None,
+    viz: NullVisualiser | None = None,
     on_transition: Callable[[PushWorld, Observation, np.ndarray | None], None] | None = None,
 ) -> PushResult:
     """Reset the world with ``cfg.seed`` and push object ``cfg.object_index`` to the goal.

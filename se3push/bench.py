@@ -351,8 +351,8 @@ def bench_sampling(*, repeats: int, pushes: int = 3, steps: int = 16) -> dict:
     import torch
     from tqdm import tqdm
 
+    from evaluation.trials import draw_trial
     from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
-    from planner.trials import draw_trial
     from scenarios import load_scenario
     from sim import PushWorld
     from sim.jobs import torch_threads

@@ -120,96 +120,17 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
 
 def _cmd_trials(args: argparse.Namespace) -> int:
-    from planner.trials import TrialsConfig, run_trials, summary_cells
+    from evaluation.report import format_summary
+    from evaluation.trials import TrialsConfig, run_trials
 
     cfg = TrialsConfig(scenario=args.scenario, n=args.n, model=args.model, planner=args.planner,
                        seed=args.seed, max_steps=args.max_steps,
                        **_planning_configs(args))  # fmt: skip
     s = run_trials(cfg, args.out, workers=args.workers, threads=args.threads, **_backend(args))
-    lo, hi = s["success_tight_ci95"]
-    lo2, hi2 = s["success_loose_ci95"]
-    print(
-        f"{args.model} / {args.planner} on {args.scenario}, "
-        f"{s['trials']} trials (seed {args.seed}):\n"
-        f"  success (2 cm, 10 deg)  {s['success_tight']:.0%}  [95 % CI {lo:.0%}-{hi:.0%}]\n"
-        f"  success (5 cm, 20 deg)  {s['success_loose']:.0%}  [95 % CI {lo2:.0%}-{hi2:.0%}]\n"
-        f"  median final error      {s['median_final_pos_err_m'] * 100:.1f} cm, "
-        f"{s['median_final_yaw_err_deg']:.1f} deg\n"
-        f"  median steps            {s['median_steps']:.0f}\n"
-        f"  median replan           {s['median_replan_ms_median']:.0f} ms\n"
-        f"  model exploitation      {_diagnostics_line(s)}\n"
-        + (
-            f"  path efficiency         {s['path_efficiency']:.2f} (of the distance the object "
-            f"travelled, the share toward the goal)\n"
-            if s.get("path_efficiency") is not None
-            else ""
-        )
-        + (
-            f"  pusher out of view      {_share(s['pusher_unseen_successes'])} of the steps "
-            f"of successes, {_share(s['pusher_unseen_failures'])} of failures\n"
-            if s.get("pusher_unseen_successes") is not None
-            or s.get("pusher_unseen_failures") is not None
-            else ""
-        )
-        + (
-            f"  motion gain             {s['median_motion_gain']:.2f} (median at the end"
-            + (
-                f"; glancing pushes {s['median_glancing_gain']:.2f}"
-                if s.get("median_glancing_gain") is not None
-                else ""
-            )
-            + ")\n"
-            if s.get("median_motion_gain") is not None
-            else ""
-        )
-        + (
-            f"  other objects moved     {summary_cells(s)['disturbance']} (median of the "
-            f"largest displacement, {s['trials_among_others']} trials among others)\n"
-            if s["trials_among_others"]
-            else ""
-        )
-        + (
-            "  by pushed object        "
-            + ", ".join(
-                f"{k} {v['tight']}/{v['trials']} ({v['loose']} loose{_gain(v)})"
-                for k, v in s["by_shape"].items()
-            )  # fmt: skip
-            + "\n"
-            if len(s["by_shape"]) > 1
-            else ""
-        )
-        + "".join(
-            f"  by pushed {what:<13} "
-            + ", ".join(f"{k} {v['tight']}/{v['trials']}" for k, v in s[key].items())
-            + "\n"
-            for what, key in (("mass", "by_mass"), ("size", "by_size"))
-            if len(s[key]) > 1
-        )
-        + f"wrote {args.out}/trials.jsonl, summary.json, paths.png"
-    )
+    print(format_summary(s, f"{args.model} / {args.planner} on {args.scenario}, "
+                            f"{s['trials']} trials (seed {args.seed})"))  # fmt: skip
+    print(f"wrote {args.out}/trials.jsonl, summary.json, paths.png")
     return 0
-
-
-def _share(x: float | None) -> str:
-    """A share as a percentage ("–" for none)."""
-    return "–" if x is None else f"{x:.0%}"
-
-
-def _gain(row: dict) -> str:
-    """A by-shape row's median motion gain, for the trials summary (empty without one)."""
-    gain = row.get("median_motion_gain")
-    return "" if gain is None else f", gain {gain:.2f}"
-
-
-def _diagnostics_line(s: dict) -> str:
-    from planner.trials import summary_cells
-
-    c, d = summary_cells(s), s["diagnostics"]
-    return (
-        f"phantom motion {c['phantom']} of {d['still_steps']} still steps, "
-        f"missed motion {c['missed']} of {d['moved_steps']} pushes, "
-        f"predicted/actual progress {c['progress']}"
-    )
 
 
 def _closed_loop_options(
@@ -391,7 +312,7 @@ def _planning_configs(args: argparse.Namespace) -> dict:
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
-    from planner.study import StudyConfig, run_study
+    from evaluation.study import StudyConfig, run_study
 
     cfg = StudyConfig(scenario=args.scenario, data=args.data, models=tuple(args.models),
                       trials=args.trials, seed=args.seed, planner=args.planner,
@@ -406,8 +327,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
 
 
 def _cmd_deflection(args: argparse.Namespace) -> int:
+    from evaluation.study import BACKEND_MODELS, parse_models, push_deflection, study_dynamics
     from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK
-    from planner.study import BACKEND_MODELS, parse_models, push_deflection, study_dynamics
     from se3net.checkpoint import refuse_trained_on
     from sim.datastore import read_manifest, scenario_of
     from sim.shards import atomic_write_json
@@ -451,7 +372,7 @@ def _cmd_deflection(args: argparse.Namespace) -> int:
 
 
 def _cmd_improve(args: argparse.Namespace) -> int:
-    from planner.improve import ImproveConfig, run_improve
+    from evaluation.improve import ImproveConfig, run_improve
 
     cfg = ImproveConfig(
         scenarios=tuple(args.scenario), model=args.model, data=tuple(args.data),
@@ -487,7 +408,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 def _cmd_compare(args: argparse.Namespace) -> int:
     import json
 
-    from planner.compare import compare_trials, format_comparison, format_pooled, pool_comparisons
+    from evaluation.compare import (
+        compare_trials,
+        format_comparison,
+        format_pooled,
+        pool_comparisons,
+    )
 
     pairs = [(args.a, args.b), *(args.pair or [])]
     results = [
@@ -818,13 +744,13 @@ def _cmd_plan_push(args: argparse.Namespace) -> int:
 
     viz = None
     if args.viz or args.record:
-        from planner.viz import MeshcatVisualiser
+        from integrations.viz import MeshcatVisualiser
 
         viz = MeshcatVisualiser(live=args.viz, record=args.record)
     if args.threads is None:
         result = run_push(cfg, on_step=show, viz=viz)
     else:
-        from planner.trials import worker_threads
+        from evaluation.trials import worker_threads
         from sim.jobs import torch_threads
 
         with torch_threads(worker_threads(args.threads)):

@@ -40,9 +40,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import torch  # noqa: E402
 
 import planner.loop as loop  # noqa: E402
+from evaluation.trials import draw_trial  # noqa: E402
 from planner.dynamics import PlanState, to_world  # noqa: E402
 from planner.observe import plan_state  # noqa: E402
-from planner.trials import draw_trial  # noqa: E402
 from scenarios import load_scenario  # noqa: E402
 from se3net.data import subsample  # noqa: E402
 from se3net.metrics import point_loss  # noqa: E402
@@ -190,7 +190,7 @@ def offline(args: argparse.Namespace) -> None:
 
 
 def pair(lines: str, folder: str) -> None:
-    from planner.compare import _success_line, paired_stats, read_trials
+    from evaluation.compare import _success_line, paired_stats, read_trials
 
     mine = [json.loads(line) for line in open(lines)]
     _, theirs = read_trials(folder)

@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from evaluation.diagnostics import path_efficiency, pooled, unseen_share
 from planner.base import ONE_PLANNER_SETTINGS, PlannerConfig
 from planner.cost import COST_BEFORE_OPTIONS, CostConfig
-from planner.diagnostics import path_efficiency, pooled, unseen_share
 from planner.dynamics import (
     CONTACT_MARGIN_M,
     PLAN_FEEDBACK,
@@ -258,28 +258,6 @@ def tally(
     for k, g in gains.items():
         rows[k]["median_motion_gain"] = float(np.median(g))
     return dict(sorted(rows.items(), key=lambda item: label_order(item[0])))
-
-
-def fmt(x: Any, spec: str = ".3f") -> str:
-    """A figure for a table, or a dash where it is undefined (None)."""
-    return "–" if x is None else format(x, spec)
-
-
-def summary_cells(s: dict[str, Any]) -> dict[str, str]:
-    """The success and diagnostics figures of a summary, formatted for the tables that show
-    them (trials, study, improve rounds)."""
-    d = s["diagnostics"]
-    (lo, hi), (lo2, hi2) = s["success_tight_ci95"], s["success_loose_ci95"]
-    return {
-        "tight": f"{s['success_tight']:.0%} [{lo:.0%}–{hi:.0%}]",
-        "loose": f"{s['success_loose']:.0%} [{lo2:.0%}–{hi2:.0%}]",
-        "phantom": fmt(d["phantom_rate"], ".0%"),
-        "missed": fmt(d["missed_rate"], ".0%"),
-        "progress": fmt(d["progress_ratio"], ".2f"),
-        "disturbance": "–"
-        if s.get("median_others_moved_m") is None
-        else f"{100 * s['median_others_moved_m']:.1f} cm ({s['others_moved_over_1cm']:.0%} > 1 cm)",
-    }
 
 
 def worker_threads(threads: int | None = None) -> int:

@@ -31,6 +31,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from evaluation.report import fmt, summary_cells
+from evaluation.trials import TrialsConfig, run_trials, weights_of
 from planner.base import HORIZON_BEFORE, PlannerConfig
 from planner.cost import CostConfig
 from planner.dynamics import (
@@ -44,7 +46,6 @@ from planner.dynamics import (
     planar_fit,
     to_world,
 )
-from planner.trials import TrialsConfig, fmt, run_trials, summary_cells, weights_of
 from scenarios import InputError, check_seed
 from sim.folders import writes_folder
 from sim.planar import angle_between_deg

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from planner.diagnostics import exploitation, pauses, pooled, step_figures
+from evaluation.diagnostics import pauses, pooled
+from planner.diagnostics import exploitation, step_figures
 
 
 def _step(pred_mm, act_mm, pred_prog_mm=0.0, act_prog_mm=0.0):

@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from evaluation.report import summary_cells
+from evaluation.trials import TrialsConfig, draw_trial, run_trials, worker_backend
 from planner.base import HORIZON_BEFORE, PlannerConfig
 from planner.cost import COST_BEFORE_OPTIONS, CostConfig
 from planner.dynamics import (
@@ -40,7 +42,6 @@ from planner.dynamics import (
     recorded_motion_gain,
 )
 from planner.loop import PushConfig, push_scenario, run_push
-from planner.trials import TrialsConfig, draw_trial, run_trials, summary_cells, worker_backend
 from scenarios import InputError, check_seed, load_scenario
 from scenarios.config import differences, scenario_dict
 from sim.dataset import (

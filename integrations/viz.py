@@ -55,21 +55,6 @@ def view_position(table_size_m: tuple[float, float] | list[float], *, margin: fl
     return (distance * VIEW_DIRECTION / np.linalg.norm(VIEW_DIRECTION)).tolist()
 
 
-class NullVisualiser:
-    """Does nothing: the loop never checks whether visualisation is on."""
-
-    frames = 0
-
-    def start(self, world: PushWorld, obs: Observation, goal: np.ndarray, **_: Any) -> None:
-        pass
-
-    def step(self, obs: Observation, info: PlanInfo) -> None:
-        pass
-
-    def finish(self) -> None:
-        pass
-
-
 def _pose_matrix(x: float, y: float, yaw: float, z: float) -> np.ndarray:
     c, s = math.cos(yaw), math.sin(yaw)
     T = np.eye(4)

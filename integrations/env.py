@@ -4,9 +4,10 @@ policy of it.
 ::
 
     import gymnasium
-    import planner.env  # registers se3push/Push-v0 (Gymnasium is the scale extra)
 
-    env = gymnasium.make("se3push/Push-v0", scenario="single_box")
+    # "module:id": Gymnasium imports the module, which registers the id (Gymnasium 1.x has no
+    # plugin entry points, so a bare "se3push/Push-v0" needs `import integrations.env` first)
+    env = gymnasium.make("integrations.env:se3push/Push-v0", scenario="single_box")
     obs, info = env.reset(seed=0)
     policy = MPCPolicy(env, model="default")
     while True:
@@ -15,7 +16,7 @@ policy of it.
             break
 
 An episode is a closed-loop push as ``plan-push`` and ``se3push trials`` run it: the world
-reset with a trial's seed, a goal drawn as trial goals are (``planner.trials.draw_trial``) or
+reset with a trial's seed, a goal drawn as trial goals are (``evaluation.trials.draw_trial``) or
 given, one action per control step, the object's pose error measured with its symmetry
 (``sim.planar.pose_errors``), success within the tight tolerance (``planner.loop.TIGHT``).
 
@@ -40,12 +41,12 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
+from evaluation.trials import draw_trial
 from planner.base import PlannerConfig
 from planner.cost import CostConfig
 from planner.dynamics import PLAN_MOTION_GAIN, CalibratedDynamics
 from planner.loop import TIGHT, PushConfig, check_reachable, push_planner, push_scenario, within
 from planner.observe import plan_state
-from planner.trials import draw_trial
 from sim import Observation, PushWorld
 from sim.planar import pose_errors
 
@@ -193,4 +194,4 @@ class MPCPolicy:
 
 
 if ENV_ID not in gymnasium.registry:
-    gymnasium.register(id=ENV_ID, entry_point="planner.env:PushEnv")
+    gymnasium.register(id=ENV_ID, entry_point="integrations.env:PushEnv")

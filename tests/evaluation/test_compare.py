@@ -3,7 +3,7 @@ import json
 import pytest
 from scipy.stats import binomtest
 
-from planner.compare import mcnemar_exact, paired_difference_ci, paired_stats
+from evaluation.compare import mcnemar_exact, paired_difference_ci, paired_stats
 from se3push.cli import main
 
 

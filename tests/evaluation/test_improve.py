@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-import planner.improve as improve_mod
+import evaluation.improve as improve_mod
 import scenarios
-from planner.improve import ImproveConfig, run_improve
-from planner.trials import draw_trial
+from evaluation.improve import ImproveConfig, run_improve
+from evaluation.trials import draw_trial
 from se3net.checkpoint import read_checkpoint
 from se3net.data import PushDataset
 from se3net.train import TrainConfig, train

@@ -6,8 +6,8 @@ import shutil
 import numpy as np
 import pytest
 
+from integrations.viz import MeshcatVisualiser
 from planner.loop import PushConfig, run_push
-from planner.viz import MeshcatVisualiser
 from scenarios import load_scenario
 from se3push.cli import plan_push_main
 from sim import PushWorld

@@ -5,11 +5,23 @@ import pytest
 
 gymnasium = pytest.importorskip("gymnasium", reason='the scale extra: pip install -e ".[scale]"')
 
-from planner.env import ENV_ID, MPCPolicy, PushEnv  # noqa: E402
+from integrations.env import ENV_ID, MPCPolicy, PushEnv  # noqa: E402
 from planner.loop import PushConfig, run_push  # noqa: E402
 from tests.planner.test_loop import _half_oracle_push, _HalfOracle, _nearby_goal  # noqa: E402
 
 pytestmark = pytest.mark.scale
+
+
+def test_gymnasium_makes_the_environment_by_its_module_qualified_id_alone():
+    """In a fresh interpreter that imported nothing of ours: Gymnasium imports the module."""
+    import subprocess
+    import sys
+
+    code = ("import gymnasium; env = gymnasium.make('integrations.env:se3push/Push-v0', "
+            "scenario='tiny', max_steps=3); obs, _ = env.reset(seed=0); print(env.spec.id, "
+            "sorted(obs))")  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split()[0] == ENV_ID and "'cloud'" in out.stdout
 
 
 def test_the_environment_passes_gymnasiums_checker():

@@ -5,9 +5,9 @@ from importlib import resources
 import numpy as np
 import pytest
 
-import planner.trials as trials_mod
+import evaluation.trials as trials_mod
+from evaluation.trials import TrialsConfig, draw_trial, run_trials, wilson
 from planner import CostConfig, PlannerConfig
-from planner.trials import TrialsConfig, draw_trial, run_trials, wilson
 from scenarios import InputError, load_scenario
 from se3push.cli import main
 from sim import PushWorld
@@ -231,8 +231,8 @@ def test_an_old_folder_of_a_shipped_model_name_is_refused_and_of_a_lone_object_e
 
 
 def test_summaries_count_successes_by_the_pushed_objects_shape_mass_and_size():
+    from evaluation.trials import summarize
     from planner.diagnostics import exploitation
-    from planner.trials import summarize
 
     def rec(shape, mass, tight, loose, size=(0.08, 0.06, 0.05)):
         obj = {"shape": shape, "mass_kg": mass, "size_m": list(size)}
@@ -268,8 +268,8 @@ def test_path_efficiency_is_the_share_of_the_objects_travel_that_nears_the_goal(
     """One trial pushes the object straight at the goal, one pushes it away and back: of the
     4 cm travelled in all, 2 cm brought an object nearer. Records without per-step figures
     (from before they were kept) are left out, and an object that never moved has none."""
+    from evaluation.trials import summarize
     from planner.diagnostics import exploitation, step_figures
-    from planner.trials import summarize
 
     goal = np.array([0.1, 0.0, 0.0])
 
@@ -293,7 +293,7 @@ def test_path_efficiency_is_the_share_of_the_objects_travel_that_nears_the_goal(
 def test_summaries_give_the_share_of_steps_planned_without_seeing_the_pusher():
     """Pooled over the successes and over the failures apart; records from before the figure
     was kept are left out, and a set with none of them has none."""
-    from planner.trials import summarize
+    from evaluation.trials import summarize
 
     def rec(won, seen):
         step = {"actual_progress_m": 0.0, "actual_disp_m": 0.0}

@@ -1,7 +1,7 @@
 """Paired comparison of two trial folders: which planner or model succeeds more often.
 
 Two folders written by ``se3push trials`` with the same scenario, seed and trial draw hold the
-same trials (see planner/trials.py), so their outcomes pair by trial index. Trials that both
+same trials (see evaluation/trials.py), so their outcomes pair by trial index. Trials that both
 succeed or both fail say nothing about which is better; the discordant pairs do. The
 statistics are the exact McNemar test on those pairs and Newcombe's (1998) interval for the
 paired difference of success rates. Computing returns data; :func:`format_comparison` prints.
@@ -17,9 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from planner.diagnostics import pauses
+from evaluation.diagnostics import pauses
+from evaluation.report import fmt
+from evaluation.trials import GROUPINGS, label_order, same_trial, wilson
 from planner.loop import LOOSE, TIGHT
-from planner.trials import GROUPINGS, fmt, label_order, same_trial, wilson
 from scenarios import InputError
 from scenarios.config import differences
 
@@ -170,7 +171,7 @@ def compare_trials(
         a, b: folders written by ``se3push trials --out`` with the same scenario and seed.
         tolerance: "tight" (2 cm, 10°) or "loose" (5 cm, 20°) success.
         n: compare trials 0..n-1 (both folders must hold them); None: every trial both hold.
-        by: names of :data:`planner.trials.GROUPINGS` (``shape``, ``size``, ``mass``): the
+        by: names of :data:`evaluation.trials.GROUPINGS` (``shape``, ``size``, ``mass``): the
             paired trials are also compared group by group of their pushed object (one group
             per combination of the named keys), in ``groups``.
 
@@ -250,7 +251,7 @@ def _groups(
 ) -> dict[str, dict[str, Any]]:
     """The paired outcomes grouped by the pushed object (the same in both folders: a trial is
     its world's reset seed), each group's ``outcomes_a``, ``outcomes_b`` and
-    :func:`paired_stats`, in the order of :func:`planner.trials.label_order`."""
+    :func:`paired_stats`, in the order of :func:`evaluation.trials.label_order`."""
     split: dict[str, tuple[list[bool], list[bool]]] = {}
     for i, x, y in zip(trials, outcomes_a, outcomes_b, strict=True):
         obj = recs[i].get("pushed_object")

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from planner.study import (
+from evaluation.study import (
     ACCURACY,
     StudyConfig,
     finding,
@@ -173,7 +173,7 @@ def test_push_deflection_of_a_model_that_moves_the_object_the_pusher_s_way(study
     """A model that moves the object along the pusher's commanded velocity predicts no
     deflection, so its direction error is the true deflection, bin by bin; every window
     counted was a push toward the object's side of the pusher."""
-    from planner.study import OFF_CENTRE_BINS_DEG, push_deflection
+    from evaluation.study import OFF_CENTRE_BINS_DEG, push_deflection
     from scenarios import load_scenario
 
     dt = load_scenario("tiny").action.dt_control_s
@@ -195,8 +195,8 @@ def test_left_behind_counts_the_points_a_torn_prediction_does_not_carry(study_da
     motion or by a rigid step too short (a short step is not a tear); one that moves only the
     object's points on one side of its centre leaves the other side; the observed cloud itself
     (nothing moved) has no step to tear."""
+    from evaluation.study import _moving_windows, _window_states, left_behind
     from planner.dynamics import to_world
-    from planner.study import _moving_windows, _window_states, left_behind
     from se3net.data import PushDataset
 
     ds = PushDataset(study_data, split="all", horizon=1)
@@ -259,8 +259,8 @@ def test_push_deflection_leaves_predicted_stillness_out_of_the_angles(study_data
     """A model that predicts no motion has no direction to compare: every window counts as
     predicted still, the angles are None (not the 90 degrees a zero vector would give), and
     the length ratio is about 0."""
+    from evaluation.study import push_deflection
     from planner.dynamics import make_dynamics
-    from planner.study import push_deflection
     from scenarios import load_scenario
 
     (rows,) = push_deflection([make_dynamics("no-motion", load_scenario("tiny"))], study_data)

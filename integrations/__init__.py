@@ -1,0 +1,2 @@
+"""Integrations beside the MPC core: the Gymnasium environment (``integrations.env``) and the
+meshcat visualiser (``integrations.viz``)."""
