@@ -29,19 +29,11 @@ from typing import Any
 
 import numpy as np
 
+from evaluation.records import SCHEMA, migrate_config
 from evaluation.report import summary_cells
 from evaluation.trials import TrialsConfig, draw_trial, run_trials, worker_backend
-from planner.base import HORIZON_BEFORE, PlannerConfig
-from planner.cost import COST_BEFORE_OPTIONS, CostConfig
-from planner.dynamics import (
-    CONTACT_MARGIN_M,
-    PLAN_FEEDBACK,
-    PLAN_MOTION_GAIN,
-    ROLLOUT_BEFORE_OPTIONS,
-    check_planner_rollout,
-    recorded_motion_gain,
-)
 from planner.loop import PushConfig, push_scenario, run_push
+from planner.settings import PlanSettings
 from scenarios import InputError, check_seed, load_scenario
 from scenarios.config import differences, scenario_dict
 from sim.dataset import (
@@ -93,31 +85,13 @@ class ImproveConfig:
     would hardly show the model"""
     batch: int = 32
     eval_every: int = 250
-    planner: str = "cem"
     max_steps: int = 60
-    horizon: int = PlannerConfig.horizon
     """actions per plan, in the collection pushes and the held-out trials"""
-    feedback: str = PLAN_FEEDBACK
-    """how the planner feeds a learned model's predictions back (``se3net.rollout.FEEDBACK``)"""
-    contact_margin_m: float | None = CONTACT_MARGIN_M
-    """the planner's contact gate (``planner.dynamics.contact_gate``; None: off)"""
-    motion_gain: str = PLAN_MOTION_GAIN
-    """the planner's motion gain (``planner.dynamics.MOTION_GAINS``)"""
-    shaping_fade: str = CostConfig.shaping_fade
-    """where predicted motion fades the cost's shaping term (``CostConfig.shaping_fade``)"""
-    edge_weight: float = CostConfig.w_edge
-    """weight of the cost's term that keeps the object off the table's edge
-    (``CostConfig.w_edge``)"""
-    keepout_weight: float = CostConfig.w_keepout
-    """weight of the cost's keep-out term (``CostConfig.w_keepout``)"""
-    near_goal_m: float = CostConfig.near_goal_m
-    """where the shaping and keep-out terms fade near the goal (``CostConfig.near_goal_m``)"""
+    plan: PlanSettings = PlanSettings()
+    """the planning settings of every push (optimiser, cost, rollout)"""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
-        check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
-        self.cost()  # refuses a bad one
-        self.planning()  # refuses a bad horizon
         for name in ("scenarios", "data", "measure_only"):  # one name or path stands for one
             value = getattr(self, name)
             object.__setattr__(self, name, (value,) if isinstance(value, str) else tuple(value))
@@ -134,22 +108,17 @@ class ImproveConfig:
         if not 0.0 <= self.visited_fraction < 1.0:
             raise InputError(f"--visited-fraction must be in [0, 1), got {self.visited_fraction}")
 
-    def planning(self) -> PlannerConfig:
-        """The optimiser's settings: the defaults but the horizon."""
-        return PlannerConfig(horizon=self.horizon)
-
-    def cost(self) -> CostConfig:
-        """The cost's settings: the defaults but the shaping fade, the edge and keep-out weights
-        and the fade near the goal."""
-        return CostConfig(shaping_fade=self.shaping_fade, w_edge=self.edge_weight,
-                          w_keepout=self.keepout_weight, near_goal_m=self.near_goal_m)  # fmt: skip
-
     def collect_seed(self, r: int) -> int:
         return self.seed * COLLECT_STREAM + r
 
     def measured(self) -> tuple[str, ...]:
         """Every scenario the rounds are measured on: the collected ones, then the others."""
         return (*self.scenarios, *self.measure_only)
+
+
+def config_record(cfg: ImproveConfig) -> dict[str, Any]:
+    """What an improve run's ``config.json`` holds (``evaluation.records``, today's schema)."""
+    return {"schema": SCHEMA, **asdict(cfg), "retired": {}}
 
 
 def record_trial(
@@ -183,11 +152,8 @@ def record_trial(
             start(world, obs)
 
     push = PushConfig(
-        goal=tuple(trial["goal"]), scenario=scenario, model=model, planner=cfg.planner,
-        planning=cfg.planning(), seed=trial["reset_seed"], max_steps=cfg.max_steps,
-        action_noise=cfg.action_noise,
-        feedback=cfg.feedback, contact_margin_m=cfg.contact_margin_m,
-        motion_gain=cfg.motion_gain, cost=cfg.cost(),
+        goal=tuple(trial["goal"]), scenario=scenario, model=model, seed=trial["reset_seed"],
+        max_steps=cfg.max_steps, action_noise=cfg.action_noise, plan=cfg.plan,
     )  # fmt: skip
     result = run_push(push, on_transition=on_transition)
     if current["rec"].length > 0:
@@ -243,7 +209,7 @@ def collect(
         "exploration": {
             "modes": [PLANNER_MODE],
             "model": model,
-            "planner": cfg.planner,
+            "planner": cfg.plan.planner,
             "action_noise": cfg.action_noise,
             "round": r,
             "trials": cfg.trials_per_round,
@@ -319,31 +285,23 @@ def run_improve(
     out.mkdir(parents=True, exist_ok=True)
     meta = out / "config.json"
     if meta.exists():
-        old, new = json.loads(meta.read_text()), json.loads(json.dumps(asdict(cfg)))
+        # in today's schema (runs from before a setting ran as the code did before it)
+        old = migrate_config(json.loads(meta.read_text()))
+        new = json.loads(json.dumps(config_record(cfg)))
         old.pop("rounds", None), new.pop("rounds")  # more rounds continue a run
-        # runs from before the planner's options had them as they were before
-        old = {**ROLLOUT_BEFORE_OPTIONS, "shaping_fade": COST_BEFORE_OPTIONS["shaping_fade"],
-               "edge_weight": COST_BEFORE_OPTIONS["w_edge"],
-               "keepout_weight": COST_BEFORE_OPTIONS["w_keepout"],
-               "near_goal_m": COST_BEFORE_OPTIONS["near_goal_m"], "horizon": HORIZON_BEFORE,
-               **old}  # fmt: skip
-        old["motion_gain"] = recorded_motion_gain(old["motion_gain"])
         if old != new:
             raise InputError(
                 f"{out} holds another improve run ({'; '.join(differences(old, new))}); "
                 "use a new --out folder"
             )
-    atomic_write_json(meta, asdict(cfg))
+    atomic_write_json(meta, config_record(cfg))
 
     def heldout(model: str, r: int) -> list[dict[str, Any]]:
         rows = []
         for scenario, name in zip(cfg.measured(), names, strict=True):
             tcfg = TrialsConfig(
-                scenario=scenario, n=cfg.heldout, model=model, planner=cfg.planner,
-                planning=cfg.planning(), seed=cfg.seed, max_steps=cfg.max_steps,
-                feedback=cfg.feedback,
-                contact_margin_m=cfg.contact_margin_m, motion_gain=cfg.motion_gain,
-                cost=cfg.cost(),
+                scenario=scenario, n=cfg.heldout, model=model, seed=cfg.seed,
+                max_steps=cfg.max_steps, plan=cfg.plan,
             )  # fmt: skip
             summary = run_trials(tcfg, out / f"round_{r}" / "heldout" / name, workers=workers,
                                  backend=backend, address=address)  # fmt: skip

@@ -35,12 +35,6 @@ def share(x: float | None) -> str:
     return "–" if x is None else f"{x:.0%}"
 
 
-def gain_cell(row: dict) -> str:
-    """A by-shape row's median motion gain, for the trials summary (empty without one)."""
-    gain = row.get("median_motion_gain")
-    return "" if gain is None else f", gain {gain:.2f}"
-
-
 def diagnostics_line(s: dict) -> str:
     c, d = summary_cells(s), s["diagnostics"]
     return (
@@ -77,17 +71,6 @@ def format_summary(s: dict[str, Any], title: str) -> str:
             else ""
         )
         + (
-            f"  motion gain             {s['median_motion_gain']:.2f} (median at the end"
-            + (
-                f"; glancing pushes {s['median_glancing_gain']:.2f}"
-                if s.get("median_glancing_gain") is not None
-                else ""
-            )
-            + ")\n"
-            if s.get("median_motion_gain") is not None
-            else ""
-        )
-        + (
             f"  other objects moved     {summary_cells(s)['disturbance']} (median of the "
             f"largest displacement, {s['trials_among_others']} trials among others)\n"
             if s["trials_among_others"]
@@ -96,7 +79,7 @@ def format_summary(s: dict[str, Any], title: str) -> str:
         + (
             "  by pushed object        "
             + ", ".join(
-                f"{k} {v['tight']}/{v['trials']} ({v['loose']} loose{gain_cell(v)})"
+                f"{k} {v['tight']}/{v['trials']} ({v['loose']} loose)"
                 for k, v in s["by_shape"].items()
             )  # fmt: skip
             + "\n"

@@ -31,21 +31,18 @@ from typing import Any
 import numpy as np
 import torch
 
+from evaluation.records import BEFORE
 from evaluation.report import fmt, summary_cells
 from evaluation.trials import TrialsConfig, run_trials, weights_of
-from planner.base import HORIZON_BEFORE, PlannerConfig
-from planner.cost import CostConfig
 from planner.dynamics import (
     CONTACT_MARGIN_M,
     PLAN_FEEDBACK,
-    PLAN_MOTION_GAIN,
-    ROLLOUT_BEFORE_OPTIONS,
     PlanState,
-    check_planner_rollout,
     make_dynamics,
     planar_fit,
     to_world,
 )
+from planner.settings import PlanSettings
 from scenarios import InputError, check_seed
 from sim.folders import writes_folder
 from sim.planar import angle_between_deg
@@ -80,33 +77,15 @@ class StudyConfig:
     """closed-loop trials per model (the same set for every model)"""
     seed: int = 0
     """seed of the trial set"""
-    planner: str = "cem"
     max_steps: int = 60
-    horizon: int = PlannerConfig.horizon
-    """actions per plan, in the trials and in the horizon error"""
+    """control steps per trial"""
     max_examples: int = 1000
     """held-out one-step examples (and horizon windows) per model"""
-    feedback: str = PLAN_FEEDBACK
-    """how the planner feeds a learned model's predictions back (``se3net.rollout.FEEDBACK``)"""
-    contact_margin_m: float | None = CONTACT_MARGIN_M
-    """the planner's contact gate (``planner.dynamics.contact_gate``; None: off)"""
-    motion_gain: str = PLAN_MOTION_GAIN
-    """the planner's motion gain (``planner.dynamics.MOTION_GAINS``)"""
-    shaping_fade: str = CostConfig.shaping_fade
-    """where predicted motion fades the cost's shaping term (``CostConfig.shaping_fade``)"""
-    edge_weight: float = CostConfig.w_edge
-    """weight of the cost's term that keeps the object off the table's edge
-    (``CostConfig.w_edge``)"""
-    keepout_weight: float = CostConfig.w_keepout
-    """weight of the cost's keep-out term (``CostConfig.w_keepout``)"""
-    near_goal_m: float = CostConfig.near_goal_m
-    """where the shaping and keep-out terms fade near the goal (``CostConfig.near_goal_m``)"""
+    plan: PlanSettings = PlanSettings()
+    """the planning settings of every push (optimiser, cost, rollout)"""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
-        check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
-        self.cost()  # refuses a bad one
-        self.planning()  # refuses a bad horizon
         if len(self.models) < 1:
             raise InputError("--models needs at least one model")
         labels = [label for label, _ in parse_models(self.models)]
@@ -123,16 +102,6 @@ class StudyConfig:
                 f"--trials and --max-examples must be positive, got {self.trials}, "
                 f"{self.max_examples}"
             )
-
-    def planning(self) -> PlannerConfig:
-        """The optimiser's settings of the trials: the defaults but the horizon."""
-        return PlannerConfig(horizon=self.horizon)
-
-    def cost(self) -> CostConfig:
-        """The cost's settings: the defaults but the shaping fade, the edge and keep-out weights
-        and the fade near the goal."""
-        return CostConfig(shaping_fade=self.shaping_fade, w_edge=self.edge_weight,
-                          w_keepout=self.keepout_weight, near_goal_m=self.near_goal_m)  # fmt: skip
 
 
 def parse_models(models: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:
@@ -524,7 +493,7 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
 
     out = Path(out)
     push_scenario(cfg.scenario)
-    horizon = cfg.horizon
+    horizon, rollout = cfg.plan.optimiser.horizon, cfg.plan.rollout
     rows = []
     # the data by its contents: a folder made again under the same path is other data
     data_id = manifest_hash(read_manifest(cfg.data))
@@ -532,19 +501,18 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
         safe = folder_name(label)
         cache = out / "accuracy" / f"{safe}.json"
         # the horizon error is the model rolled as the planner rolls it: a cache made with
-        # other planner settings (one from before them: ROLLOUT_BEFORE_OPTIONS) is measured again;
-        # the motion gain is fitted in the closed loop, so open-loop windows never see it
-        rolled = {"feedback": cfg.feedback, "contact_margin_m": cfg.contact_margin_m,
+        # other planner settings (one from before them: evaluation.records.BEFORE) is measured
+        # again
+        rolled = {"feedback": rollout.feedback, "contact_margin_m": rollout.contact_margin_m,
                   "horizon": horizon}  # fmt: skip
         # and the figures are of these weights on this data: a cache of others (or one from
         # before this was recorded, which cannot say) is measured again
         measured = {"data": data_id, "max_examples": cfg.max_examples,
                     "model_sha256": weights_of(model)}  # fmt: skip
         acc = json.loads(cache.read_text()) if cache.exists() else None
-        before = {k: ROLLOUT_BEFORE_OPTIONS[k] for k in ("feedback", "contact_margin_m")}
         if acc is not None:
             # a cache from before the horizon was recorded was rolled 4 steps
-            was_rolled = {"horizon": HORIZON_BEFORE, **acc.pop("rolled", before)}
+            was_rolled = {**BEFORE["optimiser"], **acc.pop("rolled", BEFORE["rollout"])}
             if was_rolled != rolled or acc.pop("measured", None) != measured:
                 acc = None
         if acc is None:
@@ -555,18 +523,15 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
                     cfg.data,
                     horizon,
                     max_windows=cfg.max_examples,
-                    feedback=cfg.feedback,
-                    contact_margin_m=cfg.contact_margin_m,
+                    feedback=rollout.feedback,
+                    contact_margin_m=rollout.contact_margin_m,
                 ),  # fmt: skip
             }
             cache.parent.mkdir(parents=True, exist_ok=True)
             atomic_write_json(cache, {**acc, "rolled": rolled, "measured": measured})
         trials = TrialsConfig(
-            scenario=cfg.scenario, n=cfg.trials, model=model, planner=cfg.planner,
-            planning=cfg.planning(), seed=cfg.seed, max_steps=cfg.max_steps,
-            feedback=cfg.feedback,
-            contact_margin_m=cfg.contact_margin_m, motion_gain=cfg.motion_gain,
-            cost=cfg.cost(),
+            scenario=cfg.scenario, n=cfg.trials, model=model, seed=cfg.seed,
+            max_steps=cfg.max_steps, plan=cfg.plan,
         )  # fmt: skip
         summary = run_trials(trials, out / "trials" / safe, workers=workers)
         summary.pop("config")
@@ -591,7 +556,7 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
     atomic_write_json(out / "study.json", result)
     text = (
         table_markdown(rows) + f"\n{result['finding']}\n\nHorizon: {horizon} steps; "
-        f"{cfg.trials} trials per model (seed {cfg.seed}, planner {cfg.planner}); accuracy on "
+        f"{cfg.trials} trials per model (seed {cfg.seed}, planner {cfg.plan.planner}); accuracy on "
         f"the test split of `{cfg.data}`.\n"
     )
     atomic_write_bytes(out / "study.md", text.encode())

@@ -22,17 +22,10 @@ from typing import Any
 import numpy as np
 
 from evaluation.diagnostics import path_efficiency, pooled, unseen_share
-from planner.base import ONE_PLANNER_SETTINGS, PlannerConfig
-from planner.cost import COST_BEFORE_OPTIONS, CostConfig
-from planner.dynamics import (
-    CONTACT_MARGIN_M,
-    PLAN_FEEDBACK,
-    PLAN_MOTION_GAIN,
-    ROLLOUT_BEFORE_OPTIONS,
-    check_planner_rollout,
-    recorded_motion_gain,
-)
+from evaluation.records import SCHEMA, migrate_config
+from planner.base import ONE_PLANNER_SETTINGS
 from planner.loop import PushConfig, push_scenario, run_push
+from planner.settings import PlanSettings
 from scenarios import InputError, Scenario, check_seed, load_scenario
 from scenarios.config import differences
 from sim import PushWorld
@@ -53,24 +46,12 @@ class TrialsConfig:
     model: str = "default"
     """dynamics: default, a checkpoint path, checkpoints joined by "+" (an ensemble), oracle or
     no-motion"""
-    planner: str = "cem"
-    """optimiser"""
     seed: int = 0
     """seed of the trial set (and of each trial's planner)"""
     max_steps: int = 60
     """control steps per trial"""
-    planning: PlannerConfig = PlannerConfig()
-    """the optimiser's settings (each trial's planner is seeded with its world's seed)"""
-    cost: CostConfig = CostConfig()
-    """the cost's weights"""
-    feedback: str = PLAN_FEEDBACK
-    """how a learned model's predicted clouds are fed back (``se3net.rollout.FEEDBACK``)"""
-    contact_margin_m: float | None = CONTACT_MARGIN_M
-    """within what margin of touch a learned model's predicted motions count
-    (``planner.dynamics.contact_gate``; None: all of them)"""
-    motion_gain: str = PLAN_MOTION_GAIN
-    """a learned model's predicted motion scaled by gains fitted online
-    (``planner.dynamics.MOTION_GAINS``, ``PushConfig``)"""
+    plan: PlanSettings = PlanSettings()
+    """the planning settings (each trial's optimiser is seeded with its world's seed)"""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
@@ -78,7 +59,6 @@ class TrialsConfig:
             raise InputError(
                 f"--n and --max-steps must be positive, got {self.n} and {self.max_steps}"
             )
-        check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
 
 
 TRIAL_SET = 2
@@ -149,18 +129,13 @@ def run_trial(cfg: TrialsConfig, i: int) -> dict[str, Any]:
         goal=tuple(trial["goal"]),
         scenario=cfg.scenario,
         model=cfg.model,
-        planner=cfg.planner,
         seed=trial["reset_seed"],
         max_steps=cfg.max_steps,
-        planning=cfg.planning,
-        cost=cfg.cost,
-        feedback=cfg.feedback,
-        contact_margin_m=cfg.contact_margin_m,
-        motion_gain=cfg.motion_gain,
+        plan=cfg.plan,
     )
     result = run_push(push)
     path = [trial["start"][:2]] + [r.object_pose[:2] for r in result.records]
-    return {**trial, **result.summary(), "path": path}
+    return {**trial, **result.summary(), "path": path, "schema": SCHEMA}
 
 
 def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -193,9 +168,6 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     for outcome, won in (("successes", True), ("failures", False)):
         steps = (r["per_step"] for r in records if "per_step" in r and r["success_tight"] == won)
         out[f"pusher_unseen_{outcome}"] = unseen_share(steps)
-    for key in ("motion_gain", "glancing_gain"):  # records from before them have neither
-        gains = [r[key] for r in records if r.get(key) is not None]
-        out[f"median_{key}"] = float(np.median(gains)) if gains else None
     # where generalisation stops: successes by the pushed object's shape, size and mass
     pushed = [r for r in records if "pushed_object" in r]
     for key, group in GROUPINGS.items():
@@ -243,20 +215,14 @@ GROUPINGS: dict[str, Callable[[dict[str, Any]], str]] = {
 def tally(
     records: list[dict[str, Any]], key: Callable[[dict[str, Any]], str]
 ) -> dict[str, dict[str, Any]]:
-    """Tight and loose successes and trials per ``key(pushed_object)``, in sorted key order,
-    and the median final motion gain where the trials fitted one (``PushResult.motion_gain``)."""
+    """Tight and loose successes and trials per ``key(pushed_object)``, in sorted key order."""
     rows: dict[str, dict[str, Any]] = {}
-    gains: dict[str, list[float]] = {}
     for r in records:
         k = key(r["pushed_object"])
         row = rows.setdefault(k, {"tight": 0, "loose": 0, "trials": 0})
         row["tight"] += int(r["success_tight"])
         row["loose"] += int(r["success_loose"])
         row["trials"] += 1
-        if r.get("motion_gain") is not None:
-            gains.setdefault(k, []).append(r["motion_gain"])
-    for k, g in gains.items():
-        rows[k]["median_motion_gain"] = float(np.median(g))
     return dict(sorted(rows.items(), key=lambda item: label_order(item[0])))
 
 
@@ -303,32 +269,27 @@ def _names_shipped_weights(model: str) -> bool:
 
 
 def _compared(meta: dict) -> dict:
-    """What makes two trial folders the same set: the configuration but ``n`` (the set is a
-    prefix: any n extends or summarises it) and the planner settings only other optimisers
-    read; cost settings added later count as the older runs had them
-    (``COST_BEFORE_OPTIONS``), and the disturbance weight not at all where the pushed object is
-    always alone; runs from before ``feedback`` fed predicted clouds back on the grid and those
-    from before the contact gate had none, those from before the motion gain no gain, and the
-    simulator backends have none of them. ``planning.seed`` does not count: each trial seeds its
-    planner with its world's reset seed."""
-    out = {k: v for k, v in meta.items() if k != "n"}
-    out |= {k: meta.get(k, before) for k, before in ROLLOUT_BEFORE_OPTIONS.items()}
-    out["motion_gain"] = recorded_motion_gain(out["motion_gain"])
-    if meta.get("model") in ("oracle", "no-motion"):
-        for k in ROLLOUT_BEFORE_OPTIONS:
-            del out[k]
-    if isinstance(meta.get("cost"), dict):  # settings added later, as the runs before had them
-        out["cost"] = {**COST_BEFORE_OPTIONS, **meta["cost"]}
-        if load_scenario(meta["scenario"]).objects.count[1] == 1:  # alone: the term is inert
-            del out["cost"]["w_disturb"]
-    if isinstance(meta.get("planning"), dict):
-        mine = meta["planner"]
-        out["planning"] = {
-            k: v
-            for k, v in meta["planning"].items()
-            if ONE_PLANNER_SETTINGS.get(k, mine) == mine and k != "seed"
-        }
-    return out
+    """What makes two trial folders the same set: the configuration (in today's schema,
+    ``evaluation.records``) but ``n`` (the set is a prefix: any n extends or summarises it)
+    and the optimiser settings only other optimisers read; the disturbance weight not at all
+    where the pushed object is always alone, and the rollout settings not for the simulator
+    backends. The optimiser's seed does not count: each trial seeds its planner with its
+    world's reset seed."""
+    meta = migrate_config(meta)
+    out = {k: v for k, v in meta.items() if k not in ("n", "plan")}
+    plan = {**meta["plan"], "cost": dict(meta["plan"]["cost"])}
+    mine = plan["planner"]
+    plan["optimiser"] = {
+        k: v
+        for k, v in plan["optimiser"].items()
+        if ONE_PLANNER_SETTINGS.get(k, mine) == mine and k != "seed"
+    }
+    if meta.get("model") in ("oracle", "no-motion"):  # how a learned model is rolled
+        del plan["rollout"]
+        out["retired"] = {k: v for k, v in out["retired"].items() if k != "motion_gain"}
+    if load_scenario(meta["scenario"]).objects.count[1] == 1:  # alone: the term is inert
+        plan["cost"].pop("w_disturb", None)
+    return {**out, "plan": plan}
 
 
 @writes_folder(lambda a: a.arguments["out"])
@@ -361,7 +322,8 @@ def run_trials(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta_path, log = out / "config.json", out / "trials.jsonl"
-    meta = {**asdict(cfg), "trial_set": TRIAL_SET, "model_sha256": weights_of(cfg.model)}
+    meta = {"schema": SCHEMA, **asdict(cfg), "retired": {}, "trial_set": TRIAL_SET,
+            "model_sha256": weights_of(cfg.model)}  # fmt: skip
     old_meta = json.loads(meta_path.read_text()) if meta_path.exists() else None
     if old_meta is not None:
         old, new = _compared(old_meta), _compared(meta)
@@ -414,7 +376,7 @@ def run_trials(
     if not prefix:  # the folder's files describe its whole set, not a prefix asked of it
         atomic_write_json(out / "summary.json", summary)
         plot_paths(
-            ordered, out / "paths.png", title=f"{cfg.model} / {cfg.planner} on {cfg.scenario}"
+            ordered, out / "paths.png", title=f"{cfg.model} / {cfg.plan.planner} on {cfg.scenario}"
         )
     return summary
 

@@ -9,7 +9,7 @@ policy of it.
     # plugin entry points, so a bare "se3push/Push-v0" needs `import integrations.env` first)
     env = gymnasium.make("integrations.env:se3push/Push-v0", scenario="single_box")
     obs, info = env.reset(seed=0)
-    policy = MPCPolicy(env, model="default")
+    policy = MPCPolicy(env, model="default")  # plan=PlanSettings(...) for other settings
     while True:
         obs, reward, terminated, truncated, info = env.step(policy(obs))
         if terminated or truncated:
@@ -42,11 +42,9 @@ import numpy as np
 from gymnasium import spaces
 
 from evaluation.trials import draw_trial
-from planner.base import PlannerConfig
-from planner.cost import CostConfig
-from planner.dynamics import PLAN_MOTION_GAIN, CalibratedDynamics
 from planner.loop import TIGHT, PushConfig, check_reachable, push_planner, push_scenario, within
 from planner.observe import plan_state
+from planner.settings import PlanSettings
 from sim import Observation, PushWorld
 from sim.planar import pose_errors
 
@@ -149,27 +147,21 @@ class PushEnv(gymnasium.Env):
 class MPCPolicy:
     """The MPC planner of ``plan-push`` as a policy of a :class:`PushEnv`: a planner built
     for each episode exactly as the closed loop builds it (``planner.loop.push_planner``,
-    seeded with the world's seed), fed the planner's view of the environment's world. As in
-    the loop, a learned model's motion gain (if asked for) is fitted to each executed step: the
-    policy takes the step from one call to the next to be the action it returned.
+    seeded with the world's seed), fed the planner's view of the environment's world.
 
     Args:
         env: the environment (or a wrapper of it, such as ``gymnasium.make`` returns).
         model: dynamics, as ``plan-push --model`` (default, a checkpoint, oracle, ...).
-        planner: cem, mppi, grad or sqp.
-        motion_gain: scale a learned model's predicted motion by gains fitted online
-            (``PushConfig.motion_gain``: off, online or contact).
+        plan: the planning settings (``planner.settings.PlanSettings``; a preset of
+            ``planner.presets``, or today's defaults).
+        device: device of a learned model.
     """
 
-    def __init__(self, env: gymnasium.Env, *, model: str = "default", planner: str = "cem",
-                 planning: PlannerConfig | None = None, cost: CostConfig | None = None,
-                 device: str = "cpu", motion_gain: str = PLAN_MOTION_GAIN) -> None:  # fmt: skip
-        planning, cost = planning or PlannerConfig(), cost or CostConfig()
+    def __init__(self, env: gymnasium.Env, *, model: str = "default",
+                 plan: PlanSettings | None = None, device: str = "cpu") -> None:  # fmt: skip
         self.env: PushEnv = env.unwrapped
-        self.options = {"model": model, "planner": planner, "planning": planning, "cost": cost,
-                        "device": device, "motion_gain": motion_gain}  # fmt: skip
+        self.options = {"model": model, "plan": plan or PlanSettings(), "device": device}
         self.planner, self.episode = None, -1
-        self.last = None  # the object's pose when the last plan was made, and its prediction
 
     def __call__(self, observation: dict[str, np.ndarray]) -> np.ndarray:
         """The planned action for the environment's current state (``observation`` is that
@@ -180,16 +172,7 @@ class MPCPolicy:
                              seed=env.world_seed, max_steps=env.max_steps,
                              **self.options)  # fmt: skip
             self.planner, self.episode = push_planner(cfg, env.scenario, env.world), env.episode
-            self.last = None
-        pose, pusher = env.obs.object_poses[0], env.obs.pusher_xy_m
-        dynamics = self.planner.dynamics
-        if isinstance(dynamics, CalibratedDynamics) and self.last is not None:
-            # what the last action did, beside what was predicted
-            before, predicted, pusher_before = self.last
-            radius = env.world.objects[0].footprint_radius_m
-            dynamics.observe(before, predicted, pose, radius, (pusher_before, pusher))
-        action, info = self.planner.plan(plan_state(env.obs, env.world))
-        self.last = pose.copy(), info.predicted_poses[0], pusher.copy()
+        action, _ = self.planner.plan(plan_state(env.obs, env.world))
         return action
 
 

@@ -8,6 +8,7 @@ from planner.dynamics import BACKENDS, Dynamics, PlanState, Rollout, make_dynami
 from planner.gradient import GradPlanner, SQPPlanner
 from planner.observe import plan_state
 from planner.sampling import CEMPlanner, MPPIPlanner
+from planner.settings import PlanSettings, RolloutConfig
 from scenarios import InputError, Scenario
 
 PLANNERS: dict[str, type[Planner]] = {
@@ -40,8 +41,10 @@ __all__ = [
     "PlanState",
     "Planner",
     "PlannerConfig",
+    "PlanSettings",
     "PushCost",
     "Rollout",
+    "RolloutConfig",
     "make_dynamics",
     "make_planner",
     "plan_state",

@@ -25,16 +25,14 @@ class PlannerConfig:
     The CEM defaults are iCEM's (Pinneri et al., 2020): 32, 26 and 20 sequences over 3
     iterations (78 rollouts a replan, 80 with the 2 kept elites, against 144 for the earlier
     48 x 3 with white noise), correlated noise, 30 % of the elites kept, a warm SD of a
-    quarter of the bound. Chosen on
-    50 paired single_box trials against the earlier settings (README: real-time
-    replanning); 24/19/15 was faster but lost success."""
+    quarter of the bound. Chosen on 50 paired single_box trials against the earlier settings
+    (docs/planner.md); 24/19/15 was faster but lost success."""
 
     horizon: int = 3
     """actions per plan (0.15 s each). 3, not the 4 of before: a learned model's later steps
     are its least reliable (a glancing push is predicted to keep the object in front of the
     pusher, which slides off it), and with 3 the default model succeeded in more paired dev
-    trials on every scenario (README: three steps ahead, not four). ``HORIZON_BEFORE``: the
-    one before"""
+    trials on every scenario (docs/planner.md: three steps ahead, not four)"""
     samples: int = 32
     """candidate sequences per iteration (CEM: the first iteration's; MPPI)"""
     iterations: int = 3
@@ -101,10 +99,6 @@ class PlannerConfig:
         if self.warm_std is not None and not self.warm_std > 0:
             raise InputError(f"warm_std must be positive or None, got {self.warm_std}")
 
-
-HORIZON_BEFORE = 4
-"""the horizon every plan had before 3 became the default: what an improve or study run that
-does not record its horizon planned with"""
 
 ONE_PLANNER_SETTINGS = {
     "temperature": "mppi",

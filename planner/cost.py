@@ -6,8 +6,7 @@ Per step h of a rollout: the object's position error and symmetry-aware yaw erro
 to the object's far side from the goal (once behind it, only while the object is predicted not
 to move), penalties
 on action size and change, a penalty for the pusher leaving the workspace, one for the pusher
-passing through the object while it is not yet behind it (``w_keepout``), optionally one for
-the object going where the pusher could no longer get round it (``w_edge``), and, with an
+passing through the object while it is not yet behind it (``w_keepout``), and, with an
 ensemble of models, a penalty on their disagreement (the planner keeps to what they agree on),
 and, among other objects, a penalty on their predicted displacement (it keeps them in place).
 
@@ -46,17 +45,6 @@ from sim.planar import wrap_angle
 SHAPING_FADES = ("behind", "everywhere")
 """where predicted motion may fade the shaping term (``CostConfig.shaping_fade``)"""
 
-COST_FLAGS = {"w_spread": "--spread-weight", "w_disturb": "--disturb-weight",
-              "w_edge": "--edge-weight", "w_keepout": "--keepout-weight",
-              "near_goal_m": "--near-goal"}  # fmt: skip
-"""the command-line flag of each cost setting that has one"""
-
-COST_BEFORE_OPTIONS = {"w_disturb": 0.0, "shaping_fade": "everywhere", "w_edge": 0.0,
-                       "w_keepout": 0.0, "near_goal_m": 0.0}  # fmt: skip
-"""cost settings added later, as the records made before them had them (no disturbance term;
-the shaping term faded wherever the pusher was; no edge term; no keep-out term; neither faded
-near the goal)"""
-
 
 @dataclass(frozen=True)
 class CostConfig:
@@ -87,7 +75,7 @@ class CostConfig:
     ``shaping_fade`` lets it)"""
     shaping_fade: str = "behind"
     """where predicted motion fades the shaping term: ``behind`` (only once the pusher is
-    behind the object) or ``everywhere`` (the cost before this option)"""
+    behind the object) or ``everywhere`` (an earlier planner's)"""
     w_action: float = 0.02
     """weight of |a|^2 / bound^2"""
     w_smooth: float = 0.05
@@ -110,26 +98,20 @@ class CostConfig:
     near_goal_m: float = 0.03
     """within this distance of the goal's position the shaping and keep-out terms fade in
     proportion to the object's distance from it (0: they never fade)"""
-    w_edge: float = 0.0
-    """weight of how far the pushed object is predicted to be, at any step, beyond where the
-    pusher can still get round it inside the workspace (scaled like the position error): an
-    object pushed nearer the table's edge than its own radius and the pusher's can no longer
-    be pushed back"""
 
     def __post_init__(self) -> None:
         if self.shaping_fade not in SHAPING_FADES:
             raise InputError(
-                f"--shaping-fade is one of {', '.join(SHAPING_FADES)}, got {self.shaping_fade!r}"
+                f"cost.shaping_fade is one of {', '.join(SHAPING_FADES)}, got {self.shaping_fade!r}"
             )
         for name, value in vars(self).items():
             if name == "shaping_fade":
                 continue
             if not (math.isfinite(value) and value >= 0):
-                what = COST_FLAGS.get(name, f"cost setting {name}")
-                raise InputError(f"{what} must be a finite number >= 0, got {value}")
+                raise InputError(f"cost.{name} must be a finite number >= 0, got {value}")
         for name in ("pos_scale_m", "yaw_scale_rad", "shaping_scale_m", "moving_m"):
             if not getattr(self, name) > 0:  # the scales divide
-                raise InputError(f"cost setting {name} must be positive, got {getattr(self, name)}")
+                raise InputError(f"cost.{name} must be positive, got {getattr(self, name)}")
 
 
 def check_goal(scenario: Scenario, goal: torch.Tensor | tuple[float, float, float]) -> torch.Tensor:
@@ -255,10 +237,6 @@ class PushCost:
                 [torch.relu(keep - segment_distance(centre, path[:, h], path[:, h + 1]))
                  for h in range(H)], 1)  # fmt: skip
             res.append(math.sqrt(c.w_keepout) * fade * depth / c.pos_scale_m)
-        if c.w_edge > 0:
-            reach = self.half.to(actions) - state.footprint_radius_m - self.pusher_radius
-            beyond = torch.relu(rollout.object_poses[..., :2].abs() - reach) / c.pos_scale_m
-            res.append(math.sqrt(c.w_edge) * beyond.flatten(1))
         if rollout.spread is not None and c.w_spread > 0:
             res.append(math.sqrt(c.w_spread) * rollout.spread / c.pos_scale_m)
         if rollout.other_poses is not None and c.w_disturb > 0 and state.n_others:

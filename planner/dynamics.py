@@ -22,8 +22,7 @@ positions over the horizon. Backends:
 from __future__ import annotations
 
 import copy
-import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -31,7 +30,7 @@ import torch
 
 from scenarios import InputError, Scenario
 from se3net.data import subsample
-from se3net.rollout import check_feedback, pusher_path, reprojection, rollout
+from se3net.rollout import pusher_path, reprojection, rollout
 from sim.planar import wrap_angle
 
 if TYPE_CHECKING:
@@ -118,15 +117,6 @@ PLAN_FEEDBACK = "rendered"
 CONTACT_MARGIN_M = 0.01
 """the planner's default contact margin (:func:`contact_gate`; the backends' own default is
 none)"""
-MOTION_GAINS = ("off", "online", "contact")
-"""how the planner may scale a learned model's predicted motion of the pushed object
-(:class:`CalibratedDynamics`): not at all, by one gain fitted to the push's executed steps, or
-by one gain per kind of contact (:func:`central_push`)"""
-PLAN_MOTION_GAIN = "off"
-"""the planner's default of :data:`MOTION_GAINS`"""
-ROLLOUT_BEFORE_OPTIONS = {"feedback": "grid", "contact_margin_m": None, "motion_gain": "off"}
-"""how the planner rolled a learned model before ``feedback`` and ``contact_margin_m`` were
-settings: what a record without them was made with (no gain: the gain came later still)"""
 CONTACT_SOFTNESS_M = 0.002
 """how sharply :func:`contact_gate` closes: over a few millimetres beyond the reach, so that
 its gradient is finite"""
@@ -260,7 +250,6 @@ class LearnedDynamics:
             scenario).
         scenario: the scenario (camera extrinsics, control timing).
         name: ``"se3net"`` or ``"flow"``.
-        carry_masks: keep the first step's masks over the horizon (``se3net.rollout``).
         feedback: how each predicted cloud is fed back (``se3net.rollout.FEEDBACK``):
             ``rendered`` again by the scenario's camera, or on the observed ``grid``.
         contact_margin_m: None: every predicted motion counts. A distance: an object's
@@ -278,7 +267,6 @@ class LearnedDynamics:
         *,
         name: str,
         device: str = "cpu",
-        carry_masks: bool = False,
         feedback: str = "grid",
         contact_margin_m: float | None = None,
     ):
@@ -288,7 +276,6 @@ class LearnedDynamics:
         self.model = copy.deepcopy(model).eval().requires_grad_(False)
         self.name, self.device = name, torch.device(device)
         self.dt = scenario.action.dt_control_s
-        self.carry_masks = carry_masks
         self.stride = model.cfg.stride  # the network sees every stride-th pixel
         self.reproject = reprojection(feedback, scenario.camera, self.stride)
         self.contact_margin = check_contact_margin(contact_margin_m)
@@ -316,7 +303,6 @@ class LearnedDynamics:
             actions,
             state.pusher_xy.to(self.device)[None],
             self.dt,
-            carry_masks=self.carry_masks,
             reproject=self.reproject,
         )
         T = state.T_world_cam.to(self.device, points.dtype)
@@ -365,29 +351,10 @@ class LearnedDynamics:
 def check_contact_margin(margin_m: float | None) -> float | None:
     """The contact margin (m), or an InputError saying what is wrong."""
     if margin_m is not None and not (np.isfinite(margin_m) and margin_m >= 0):
-        raise InputError(f"--contact-margin must be a distance >= 0 in metres, got {margin_m}")
-    return margin_m
-
-
-def recorded_motion_gain(recorded: object) -> object:
-    """A record's motion gain setting as :data:`MOTION_GAINS` names it: records from before the
-    per-contact gain stored ``True`` (one gain, ``online``) or ``False`` (``off``)."""
-    if isinstance(recorded, bool):
-        return "online" if recorded else "off"
-    return recorded
-
-
-def check_planner_rollout(
-    feedback: str, contact_margin_m: float | None, motion_gain: str = PLAN_MOTION_GAIN
-) -> None:
-    """An InputError for a bad ``--feedback``, ``--contact-margin`` or ``--motion-gain`` of the
-    planner's."""
-    check_feedback(feedback)
-    check_contact_margin(contact_margin_m)
-    if motion_gain not in MOTION_GAINS:
         raise InputError(
-            f"--motion-gain must be one of {', '.join(MOTION_GAINS)}, got {motion_gain!r}"
+            f"rollout.contact_margin_m must be a distance >= 0 in metres or off, got {margin_m}"
         )
+    return margin_m
 
 
 def to_world(T_world_cam: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
@@ -430,120 +397,6 @@ class EnsembleDynamics:
             spread=(spread_sq.mean(0) + 1e-12).sqrt(),  # offset: a finite gradient at 0
             other_poses=others,
         )
-
-
-MOTION_GAIN_RANGES = {"online": (0.5, 4.0), "contact": (0.1, 4.0)}
-"""the least and most a :class:`CalibratedDynamics` scales its model's predicted motion by, for
-each of :data:`MOTION_GAINS` that scales it: a glancing push's gain may go lower (in some
-trials it settled at 0.1–0.3, the model predicting millimetres where the object hardly moved)"""
-MOTION_GAIN_PRIOR_M = 0.005
-"""how much observed motion (m, footprint displacement) the gain's prior of 1 weighs as: about
-one step's push of the object"""
-CENTRAL_PUSH_DEG = 45.0
-"""a step is a central push where the pusher moves within this angle of straight at the
-object's centre (:func:`central_push`)"""
-
-
-def footprint_step(before: np.ndarray, after: np.ndarray, radius_m: float) -> np.ndarray:
-    """(3,) a planar pose change as a displacement of the object's footprint: dx, dy and the
-    yaw change times the footprint's radius (m each), so that turning and sliding weigh alike."""
-    return np.array([after[0] - before[0], after[1] - before[1],
-                     radius_m * wrap_angle(after[2] - before[2])])  # fmt: skip
-
-
-def central_push(
-    pusher_before: torch.Tensor, pusher_after: torch.Tensor, centre: torch.Tensor
-) -> torch.Tensor:
-    """(...) bool: whether a step that moves the pusher from ``pusher_before`` to
-    ``pusher_after`` (...,2) heads within :data:`CENTRAL_PUSH_DEG` of the object's ``centre``
-    (...,2) as it was before the step. The other steps are glancing: along a side, or away."""
-    motion, to_centre = pusher_after - pusher_before, centre - pusher_before
-    along = (motion * to_centre).sum(-1)
-    norms = (motion.norm(dim=-1) * to_centre.norm(dim=-1)).clamp_min(1e-12)
-    return along / norms > math.cos(math.radians(CENTRAL_PUSH_DEG))
-
-
-class CalibratedDynamics:
-    """A learned backend whose predicted motion of the pushed object is scaled by a gain fitted,
-    during the push, to the motion the executed steps actually made.
-
-    A model under-predicts how far an object it was not trained on moves (a box larger than
-    any in its data moves about one and a half times as far as the default predicts, on
-    one-step pushes: ``se3push deflection``); a planner that believes it pushes on past the
-    goal, and then back. After each executed step, :meth:`observe` compares
-    the step's predicted and actual footprint displacements (:func:`footprint_step`); the gain
-    is their least-squares ratio over the push so far, shrunk toward 1 by a prior worth
-    :data:`MOTION_GAIN_PRIOR_M` of motion and kept within :data:`MOTION_GAIN_RANGES`. The other
-    objects' poses, the clouds and an ensemble's spread are the model's own. The fit takes
-    each executed action to be the planned one: with action noise (``improve
-    --action-noise``) the noise's motion counts as the model's error.
-
-    ``mode`` ``online``: one gain; each predicted pose of the pushed object is its start pose
-    plus the gain times the model's predicted change. ``contact``: one gain for central pushes
-    and one for glancing ones (:func:`central_push`), each fitted to the executed steps of its
-    kind; each predicted step's change is scaled by its own kind's gain, the kind read from the
-    rolled-out pusher path and the object's predicted pose before the step. The model errs
-    differently by kind: over trial sets, the central gain settles at about 1.3 on the
-    held-out objects and the glancing one at about 1.0 (on the trained boxes, about 1.1 and
-    0.75), where one gain fitted to both kinds settles between them (README, "More tries on
-    the held-out objects").
-    """
-
-    def __init__(self, inner: Dynamics, mode: str = "online"):
-        if mode not in MOTION_GAIN_RANGES:
-            raise ValueError(f"a calibrated backend's mode is one of {list(MOTION_GAIN_RANGES)}")
-        self.inner, self.mode = inner, mode
-        self.name, self.differentiable = inner.name, inner.differentiable
-        self.model = getattr(inner, "model", None)  # what the visualiser shows
-        kinds = 2 if mode == "contact" else 1  # contact: (glancing, central); online: (one,)
-        self.gains, self._num, self._den = [1.0] * kinds, [0.0] * kinds, [0.0] * kinds
-
-    @property
-    def gain(self) -> float:
-        """the gain of central pushes (the only one, ``online``): the one that moves objects"""
-        return self.gains[-1]
-
-    @property
-    def glancing_gain(self) -> float | None:
-        """the gain of glancing pushes (``contact``; None ``online``)"""
-        return self.gains[0] if self.mode == "contact" else None
-
-    def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
-        out = self.inner.rollout(state, actions, clouds=clouds)
-        if all(g == 1.0 for g in self.gains):
-            return out
-        start = state.object_pose.to(out.object_poses)  # yaws: the start's plus small turns
-        poses = out.object_poses
-        if self.mode == "online":
-            return replace(out, object_poses=start + self.gain * (poses - start))
-        k = poses.shape[0]
-        before = torch.cat([start.expand(k, 1, 3), poses[:, :-1]], 1)
-        pusher = torch.cat([state.pusher_xy.to(poses).expand(k, 1, 2), out.pusher_xy[:, :-1]], 1)
-        central = central_push(pusher, out.pusher_xy, before[..., :2])
-        gain = torch.where(central, self.gains[1], self.gains[0])
-        steps = gain[..., None] * (poses - before)
-        return replace(out, object_poses=start + torch.cumsum(steps, 1))
-
-    def observe(
-        self, before: np.ndarray, predicted: np.ndarray, after: np.ndarray, radius_m: float,
-        pusher: tuple[np.ndarray, np.ndarray],
-    ) -> None:  # fmt: skip
-        """Fit the gain again with one more executed step: the pose ``before`` it, the pose
-        the plan ``predicted`` after it (made with the current gains) and the pose ``after`` it
-        (each (3,) x_m, y_m, yaw_rad), for an object of footprint radius ``radius_m``; the
-        ``pusher``'s (2,) position before and after it gives the step's kind."""
-        kind = 0
-        if self.mode == "contact":
-            kind = int(central_push(*(torch.as_tensor(p) for p in (*pusher, before[:2]))))
-        p = footprint_step(before, predicted, radius_m) / self.gains[kind]  # the model's own
-        a = footprint_step(before, after, radius_m)
-        if not (np.isfinite(p).all() and np.isfinite(a).all()):
-            return  # a step with no usable prediction would make the gain NaN for good
-        self._num[kind] += float(a @ p)
-        self._den[kind] += float(p @ p)
-        prior = MOTION_GAIN_PRIOR_M**2
-        fitted = (prior + self._num[kind]) / (prior + self._den[kind])
-        self.gains[kind] = float(np.clip(fitted, *MOTION_GAIN_RANGES[self.mode]))
 
 
 ENSEMBLE_SEP = "+"

@@ -15,21 +15,13 @@ import torch
 from planner import (
     PlanInfo,
     Planner,
-    PlannerConfig,
     PushCost,
     make_dynamics,
     make_planner,
     plan_state,
 )
-from planner.cost import CostConfig
 from planner.diagnostics import STEP_FIGURES, exploitation, step_figures
-from planner.dynamics import (
-    CONTACT_MARGIN_M,
-    PLAN_FEEDBACK,
-    PLAN_MOTION_GAIN,
-    CalibratedDynamics,
-    check_planner_rollout,
-)
+from planner.settings import PlanSettings
 from scenarios import InputError, Scenario, check_seed, load_scenario
 from se3net.device import check_device
 from sim import Observation, PushWorld
@@ -39,7 +31,6 @@ TIGHT = (0.02, 10.0)
 """success: position within 2 cm and yaw within 10 degrees"""
 LOOSE = (0.05, 20.0)
 """loose success: within 5 cm and 20 degrees"""
-MODELS = ("default", "oracle", "no-motion", "a checkpoint path", "or checkpoints joined by +")
 
 
 class NullVisualiser:
@@ -71,8 +62,6 @@ class PushConfig:
     model: str = "default"
     """dynamics: the shipped model ("default"), a checkpoint path, checkpoints joined by "+" (an
     ensemble, its disagreement penalised), "oracle" or "no-motion\""""
-    planner: str = "cem"
-    """optimiser: cem, mppi, grad or sqp"""
     seed: int = 0
     """seed of the world's reset and of the planner"""
     max_steps: int = 60
@@ -82,20 +71,8 @@ class PushConfig:
     action_noise: float = 0.0
     """SD of Gaussian noise added to each executed action, as a fraction of the action bound
     (exploration when collecting planner-visited data; 0 = the plan's action as it is)"""
-    planning: PlannerConfig = PlannerConfig()
-    """the optimiser's settings (horizon, samples, iterations…; its seed is ``seed``)"""
-    feedback: str = PLAN_FEEDBACK
-    """how a learned model's predicted clouds are fed back over the horizon
-    (``se3net.rollout.FEEDBACK``): rendered again by the camera, or on the observed grid"""
-    cost: CostConfig = CostConfig()
-    """the cost's weights (``w_spread``: an ensemble's disagreement)"""
-    contact_margin_m: float | None = CONTACT_MARGIN_M
-    """a learned model's predicted motion of an object counts only where something passes
-    within this margin of touching it (``planner.dynamics.contact_gate``; None: all counts)"""
-    motion_gain: str = PLAN_MOTION_GAIN
-    """whether a learned model's predicted motion of the pushed object is scaled by gains fitted
-    to the push's executed steps (``planner.dynamics.MOTION_GAINS``: ``off``, ``online``: one
-    gain, ``contact``: one per kind of contact; ``planner.dynamics.CalibratedDynamics``)"""
+    plan: PlanSettings = PlanSettings()
+    """the planning settings: optimiser, cost, rollout (the optimiser's seed is ``seed``)"""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
@@ -104,7 +81,6 @@ class PushConfig:
         if self.max_steps < 1:
             raise InputError(f"--max-steps must be a positive integer, got {self.max_steps}")
         check_device(self.device)
-        check_planner_rollout(self.feedback, self.contact_margin_m, self.motion_gain)
 
 
 @dataclass
@@ -153,11 +129,6 @@ class PushResult:
     """the pushed object's shape, size, mass and friction (``sim.shapes.ObjectSpec``)"""
     diagnostics: dict = field(default_factory=dict)
     """exploitation diagnostics over the executed steps (``planner.diagnostics``)"""
-    motion_gain: float | None = None
-    """the gain a learned model's predicted motion was scaled by at the end (of central pushes
-    with ``PushConfig.motion_gain`` ``contact``; None: not scaled)"""
-    glancing_gain: float | None = None
-    """the gain of glancing pushes at the end (``contact``; None otherwise)"""
     records: list[StepRecord] = field(default_factory=list)
 
     def summary(self) -> dict:
@@ -207,17 +178,15 @@ def push_planner(cfg: PushConfig, scenario: Scenario, world: PushWorld) -> Plann
             scenario,
             model=cfg.model,
             device=cfg.device,
-            feedback=cfg.feedback,
-            contact_margin_m=cfg.contact_margin_m,
+            feedback=cfg.plan.rollout.feedback,
+            contact_margin_m=cfg.plan.rollout.contact_margin_m,
         )
-        if cfg.motion_gain != "off":
-            dynamics = CalibratedDynamics(dynamics, cfg.motion_gain)
     return make_planner(
-        cfg.planner,
+        cfg.plan.planner,
         dynamics,
-        PushCost(scenario, torch.tensor(np.array(cfg.goal, dtype=float)), cfg.cost),
+        PushCost(scenario, torch.tensor(np.array(cfg.goal, dtype=float)), cfg.plan.cost),
         scenario,
-        replace(cfg.planning, seed=cfg.seed),
+        replace(cfg.plan.optimiser, seed=cfg.seed),
     )
 
 
@@ -260,8 +229,6 @@ def run_push(
             f"{cfg.seed} has {len(world.objects)} object(s) (indices 0..{len(world.objects) - 1})"
         )
     planner = push_planner(cfg, scenario, world)
-    calibrated = planner.dynamics if isinstance(planner.dynamics, CalibratedDynamics) else None
-    radius = world.objects[cfg.object_index].footprint_radius_m
     goal = np.array(cfg.goal, dtype=float)
     period = world.objects[cfg.object_index].yaw_period_rad
     others = [j for j in range(len(world.objects)) if j != cfg.object_index]
@@ -287,7 +254,6 @@ def run_push(
             if reached():
                 break
             before, seen = obs.object_poses[cfg.object_index].copy(), obs.pusher_seen
-            pusher_before = obs.pusher_xy_m.copy()
             action, info = planner.plan(plan_state(obs, world, cfg.object_index))
             if cfg.action_noise > 0:
                 action = np.clip(action + cfg.action_noise * bound * noise.standard_normal(2),
@@ -298,14 +264,6 @@ def run_push(
                 on_transition(world, obs, action)
             viz.step(obs, info)
             pose = obs.object_poses[cfg.object_index]
-            if calibrated is not None:
-                calibrated.observe(
-                    before,
-                    info.predicted_poses[0],
-                    pose,
-                    radius,
-                    (pusher_before, obs.pusher_xy_m.copy()),
-                )
             figures = step_figures(before, info.predicted_poses[0], pose, goal)
             rec = StepRecord(step + 1, action.tolist(), pose.tolist(), *errors(), info.wall_ms,
                              info.predicted_poses.tolist(), **figures,
@@ -334,7 +292,5 @@ def run_push(
         others_moved_m=disturbance(others_start, obs.object_poses[others, :2]),
         pushed_object=asdict(world.objects[cfg.object_index]),
         diagnostics=exploitation([asdict(r) for r in records]),
-        motion_gain=None if calibrated is None else calibrated.gain,
-        glancing_gain=None if calibrated is None else calibrated.glancing_gain,
         records=records,
     )

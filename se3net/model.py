@@ -344,7 +344,6 @@ class SE3Net(_CloudNet):
         valid: torch.Tensor,
         enc: Encoding,
         *,
-        masks: torch.Tensor | None = None,
         sigma: float = 0.0,
         gamma: float | None = None,
         generator: torch.Generator | None = None,
@@ -354,17 +353,14 @@ class SE3Net(_CloudNet):
         Args:
             points: (B0,3,H,W) input cloud, camera frame (m), B0 = 1 or B. u: (B,n) controls.
             valid: (B0,H,W) bool. enc: ``encode(points, valid)``.
-            masks: (B,k,H,W) masks to use instead of decoding them (a rollout that carries
-                the first step's masks with the points); None: decode them.
             sigma, gamma: sharpening noise SD and exponent (training); by default no noise
                 and the exponent training ended with.
         """
         code = self.backbone.code(enc, self.norm.controls(u))
-        if masks is None:
-            masks = torch.softmax(self.backbone.decode(code, enc), dim=1)
-            if self.cfg.sharpens:
-                g = float(self.gamma) if gamma is None else gamma
-                masks = sharpen(masks, sigma, g, generator)
+        masks = torch.softmax(self.backbone.decode(code, enc), dim=1)
+        if self.cfg.sharpens:
+            g = float(self.gamma) if gamma is None else gamma
+            masks = sharpen(masks, sigma, g, generator)
         B, k = masks.shape[:2]
         T = params_to_transform(self.se3_head(code).view(B, k, 6))  # (B,k,3,4)
         points, valid = points.expand(B, -1, -1, -1), valid.expand(B, -1, -1)

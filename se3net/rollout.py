@@ -24,14 +24,10 @@ How a predicted cloud is fed back (``reproject``):
   it where it is hidden), so the returned clouds keep the observed points' order and every
   caller's targets, masks and pose fits stay as they are.
 
-Two savings for planning, where many action sequences start from one observed cloud:
+A saving for planning, where many action sequences start from one observed cloud:
 
 - the observed cloud is encoded once, whatever the number of sequences (a batch of one cloud
-  is broadcast over the sequences; exact);
-- with ``carry_masks`` the masks decoded at the first step stay with their points over the
-  horizon, so later steps run the encoder and the SE(3) head but not the mask decoder (an
-  approximation whose cost is measured by the study's horizon error and by trials). Flow
-  nets have no masks and ignore it.
+  is broadcast over the sequences; exact).
 """
 
 from __future__ import annotations
@@ -167,7 +163,6 @@ def rollout(
     state: torch.Tensor,
     dt: float,
     *,
-    carry_masks: bool = False,
     reproject: Reprojection | None = None,
     **sharpen: Any,
 ) -> list[torch.Tensor]:
@@ -183,8 +178,6 @@ def rollout(
         state: (B0,s) the integrated state when the first action starts: the pusher's
             position (world frame, s = 2), or nothing for joint velocities (s = 0).
         dt: the control step (s).
-        carry_masks: keep the first step's masks for the later steps (SE3-Nets; not with
-            ``reproject``, which moves points to other pixels).
         reproject: feed each predicted cloud back rendered again by the camera (None: on the
             observed pixel grid; see the module's docstring).
         sharpen: ``sigma``, ``gamma``, ``generator`` for training's weight sharpening.
@@ -192,16 +185,12 @@ def rollout(
     Returns:
         N predicted clouds, each (B,3,H,W): where each observed point is after each step.
     """
-    if reproject is not None and carry_masks:
-        raise ValueError("carry_masks keeps masks on pixels; a reprojected cloud moves points")
     u = pusher_controls(actions, state, dt)
-    x, masks, out = points, None, []
+    x, out = points, []
     v, pixel = valid, None
     for h in range(actions.shape[1]):
         enc = model.encode(x, v)
-        pred = model.predict(x, u[:, h], v, enc, masks=masks, **sharpen)
-        if carry_masks:
-            masks = pred.masks
+        pred = model.predict(x, u[:, h], v, enc, **sharpen)
         if pixel is None:  # the observed cloud: every point is in its own pixel
             cloud = pred.points
         else:  # each observed point moves as the pixel it lands in was predicted to

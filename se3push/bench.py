@@ -211,11 +211,11 @@ def replan_breakdown(
 def _planning_dynamics(scenario, model: str | None, device: str = "cpu"):
     """The SE3-Net backend as the planner runs it by default: predictions fed back rendered,
     motion counted only within reach of touch (``PushConfig``'s defaults)."""
-    from planner import make_dynamics
-    from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK
+    from planner import PlanSettings, make_dynamics
 
-    return make_dynamics("se3net", scenario, model=model, device=device, feedback=PLAN_FEEDBACK,
-                         contact_margin_m=CONTACT_MARGIN_M)  # fmt: skip
+    rollout = PlanSettings().rollout
+    return make_dynamics("se3net", scenario, model=model, device=device, feedback=rollout.feedback,
+                         contact_margin_m=rollout.contact_margin_m)  # fmt: skip
 
 
 def _side_by_side_replan(repeats: int, model: str | None, planning: bool) -> float:
@@ -223,7 +223,7 @@ def _side_by_side_replan(repeats: int, model: str | None, planning: bool) -> flo
     the backend's defaults or (``planning``) the planner's."""
     import torch
 
-    from planner import PlannerConfig, PushCost, make_dynamics, make_planner
+    from planner import PlanSettings, PushCost, make_dynamics, make_planner
 
     torch.set_num_threads(1)
     scenario, world, state, goal = _bench_state()
@@ -232,7 +232,7 @@ def _side_by_side_replan(repeats: int, model: str | None, planning: bool) -> flo
         if planning
         else make_dynamics("se3net", scenario, model=model)
     )
-    planner = make_planner("cem", dyn, PushCost(scenario, goal), scenario, PlannerConfig())
+    planner = make_planner("cem", dyn, PushCost(scenario, goal), scenario, PlanSettings().optimiser)
     return 1e3 * median_seconds(lambda: planner.plan(state), repeats=repeats, warmup=1)
 
 
@@ -248,7 +248,7 @@ def bench_planner(
     SE3-Net checkpoint timed (default: the shipped one)."""
     import torch
 
-    from planner import PLANNERS, PlannerConfig, PushCost, make_dynamics, make_planner
+    from planner import PLANNERS, PlanSettings, PushCost, make_dynamics, make_planner
     from scenarios import InputError
     from se3net.checkpoint import model_config
     from se3net.device import check_device
@@ -261,7 +261,7 @@ def bench_planner(
     if flow_model is not None and not model_config(flow_model).is_flow:
         raise InputError(f"--flow-model {flow_model} is not a flow net; time it with --model")
     scenario, world, state, goal = _bench_state(device)
-    cfg = PlannerConfig()
+    cfg = PlanSettings().optimiser  # the default planner's
     backends = {"se3net": model, "oracle": None, "no-motion": None}
     if flow_model:
         backends["flow"] = flow_model

@@ -123,11 +123,10 @@ def _cmd_trials(args: argparse.Namespace) -> int:
     from evaluation.report import format_summary
     from evaluation.trials import TrialsConfig, run_trials
 
-    cfg = TrialsConfig(scenario=args.scenario, n=args.n, model=args.model, planner=args.planner,
-                       seed=args.seed, max_steps=args.max_steps,
-                       **_planning_configs(args))  # fmt: skip
+    cfg = TrialsConfig(scenario=args.scenario, n=args.n, model=args.model, seed=args.seed,
+                       max_steps=args.max_steps, plan=_plan_settings(args))  # fmt: skip
     s = run_trials(cfg, args.out, workers=args.workers, threads=args.threads, **_backend(args))
-    print(format_summary(s, f"{args.model} / {args.planner} on {args.scenario}, "
+    print(format_summary(s, f"{args.model} / {cfg.plan.planner} on {args.scenario}, "
                             f"{s['trials']} trials (seed {args.seed})"))  # fmt: skip
     print(f"wrote {args.out}/trials.jsonl, summary.json, paths.png")
     return 0
@@ -145,7 +144,6 @@ def _closed_loop_options(
     s.add_argument("--scenario", default=["single_box"] if several else "single_box",
                    nargs="+" if several else None, help=scenario_help)  # fmt: skip
     s.add_argument("--seed", type=int, default=0, help=seed_help)
-    s.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
     s.add_argument("--max-steps", type=int, default=60, help="control steps per trial")
     s.add_argument("--workers", type=int, default=1, help="processes for the trials")
 
@@ -186,18 +184,6 @@ def _feedback_option(s: argparse.ArgumentParser, what: str, default: str = "grid
     )  # fmt: skip
 
 
-def _contact_margin(text: str) -> float | None:
-    """``--contact-margin``: a distance in metres, or ``off``."""
-    if text == "off":
-        return None
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"--contact-margin takes a distance in metres or 'off', got {text!r}"
-        ) from None
-
-
 def _split_option(s: argparse.ArgumentParser) -> None:
     """``--split``: the episodes of a dataset that a measurement reads."""
     s.add_argument(
@@ -206,120 +192,35 @@ def _split_option(s: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
-def _shared_planning_options(s: argparse.ArgumentParser) -> None:
-    """The planner's settings that study and improve share with trials and plan-push:
-    ``--horizon``, ``--shaping-fade``, ``--keepout-weight``, ``--near-goal`` and
-    ``--edge-weight`` (cost settings), and how the planner rolls a learned model,
-    ``--feedback``, ``--contact-margin`` and ``--motion-gain``."""
-    from planner.base import HORIZON_BEFORE, PlannerConfig
-    from planner.cost import COST_FLAGS, SHAPING_FADES, CostConfig
-    from planner.dynamics import CONTACT_MARGIN_M, MOTION_GAINS, PLAN_FEEDBACK, PLAN_MOTION_GAIN
-
-    s.add_argument(
-        "--horizon", type=int, default=PlannerConfig.horizon,
-        help=f"actions per plan, 0.15 s each (default {PlannerConfig.horizon}; runs from before "
-        f"it was the default planned {HORIZON_BEFORE})",
-    )  # fmt: skip
-
-    s.add_argument(
-        "--shaping-fade", choices=SHAPING_FADES, default=CostConfig.shaping_fade,
-        help="where predicted motion of the object fades the term that draws the pusher round "
-        "behind it: only once the pusher is behind it, or everywhere (the cost before; "
-        f"default {CostConfig.shaping_fade})",
-    )  # fmt: skip
-
-    # fmt: off
-    for field, metavar, text in (
-        ("w_keepout", "W",
-         "weight of the pusher's path entering the circle that holds the pushed object (widened "
-         "by the pusher's radius) while the pusher is not yet behind it (0: no such term, the "
-         "cost before"),
-        ("near_goal_m", "M",
-         "within M metres of the goal's position the shaping and keep-out terms fade with the "
-         "object's distance from it, leaving the pusher free to turn and place the object (0: "
-         "they never fade, the cost before"),
-        ("w_edge", "W",
-         "weight of the pushed object's predicted distance beyond where the pusher can still "
-         "get round it, near the table's edge (0: no such term, the cost before"),
-    ):
-        default = getattr(CostConfig, field)
-        s.add_argument(COST_FLAGS[field], type=float, default=default, metavar=metavar,
-                       help=f"{text}; default {default})")
-    # fmt: on
-    _feedback_option(
-        s, "a learned model's predicted clouds over the plan's horizon", PLAN_FEEDBACK
-    )  # fmt: skip
-    s.add_argument(
-        "--contact-margin", type=_contact_margin, default=CONTACT_MARGIN_M, metavar="M|off",
-        help="a learned model's predicted motion of an object counts only at steps where the "
-        "pusher (or, for another object, the pushed one) passes within M metres of touching "
-        f"it (default {CONTACT_MARGIN_M}; off: every predicted motion counts)",
-    )  # fmt: skip
-    s.add_argument(
-        "--motion-gain", choices=MOTION_GAINS, default=PLAN_MOTION_GAIN,
-        help="online: scale a learned model's predicted motion of the pushed object by a gain "
-        "fitted to how far the executed steps moved it; contact: by one such gain for pushes "
-        "at the object's centre and one for glancing ones (off: the model's own motion; "
-        f"default {PLAN_MOTION_GAIN})",
-    )  # fmt: skip
-
-
-def _rollout_settings(args: argparse.Namespace) -> dict:
-    """How the planner rolls a learned model, from :func:`_shared_planning_options`' flags:
-    ``feedback``, ``contact_margin_m`` and ``motion_gain``, as the configs name them."""
-    return {"feedback": args.feedback, "contact_margin_m": args.contact_margin,
-            "motion_gain": args.motion_gain}  # fmt: skip
-
-
 def _planning_options(s: argparse.ArgumentParser) -> None:
-    """The common optimiser and cost settings of a closed-loop push."""
-    from planner.base import PlannerConfig
-    from planner.cost import CostConfig
+    """The planning settings of a command that pushes (``planner.settings.PlanSettings``): a
+    preset, a TOML file, single settings, and the optimiser by name."""
+    from planner.presets import PRESETS
 
-    d = PlannerConfig()
-    s.add_argument("--samples", type=int, default=d.samples,
-                   help=f"candidate sequences (cem: in the first iteration; default "
-                   f"{d.samples})")  # fmt: skip
-    s.add_argument("--iterations", type=int, default=d.iterations,
-                   help=f"optimiser iterations per replan (default {d.iterations})")  # fmt: skip
-    s.add_argument("--elites", type=int, default=d.elites,
-                   help=f"cem: elite sequences refitted (default {d.elites})")  # fmt: skip
-    s.add_argument(
-        "--spread-weight", type=float, default=CostConfig.w_spread, metavar="W",
-        help="weight of an ensemble's disagreement in the cost (0: plan on the members' mean "
-        f"alone; default {CostConfig.w_spread})",
-    )  # fmt: skip
-    s.add_argument(
-        "--disturb-weight", type=float, default=CostConfig.w_disturb, metavar="W",
-        help="weight of the other objects' predicted displacement in the cost (0: ignore "
-        f"them; default {CostConfig.w_disturb})",
-    )  # fmt: skip
-    _shared_planning_options(s)
+    s.add_argument("--planner", default=None, help="optimiser: cem, mppi, grad or sqp")
+    s.add_argument("--preset", default=None, choices=list(PRESETS),
+                   help="an earlier planner by name (default: today's)")  # fmt: skip
+    s.add_argument("--config", default=None, metavar="FILE.toml",
+                   help="planning settings from a TOML file (`se3push config`)")  # fmt: skip
+    s.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="assign",
+                   help="one planning setting, e.g. --set optimiser.horizon=4 --set "
+                   "cost.w_keepout=0 (after --preset and --config; repeatable)")  # fmt: skip
 
 
-def _planning_configs(args: argparse.Namespace) -> dict:
-    """``planning``, ``cost``, ``feedback``, ``contact_margin_m`` and ``motion_gain`` settings from
-    :func:`_planning_options`' flags."""
-    from planner.base import PlannerConfig
-    from planner.cost import CostConfig
+def _plan_settings(args: argparse.Namespace):
+    """The ``PlanSettings`` of :func:`_planning_options`' flags."""
+    from planner.settings import resolve_settings
 
-    planning = PlannerConfig(horizon=args.horizon, samples=args.samples,
-                             iterations=args.iterations, elites=args.elites)  # fmt: skip
-    cost = CostConfig(w_spread=args.spread_weight, w_disturb=args.disturb_weight,
-                      shaping_fade=args.shaping_fade, w_edge=args.edge_weight,
-                      w_keepout=args.keepout_weight, near_goal_m=args.near_goal)  # fmt: skip
-    return {"planning": planning, "cost": cost, **_rollout_settings(args)}
+    return resolve_settings(preset=args.preset, config=args.config, assignments=args.assign,
+                            flags={"planner": args.planner})  # fmt: skip
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
     from evaluation.study import StudyConfig, run_study
 
     cfg = StudyConfig(scenario=args.scenario, data=args.data, models=tuple(args.models),
-                      trials=args.trials, seed=args.seed, planner=args.planner,
-                      max_steps=args.max_steps, max_examples=args.max_examples,
-                      shaping_fade=args.shaping_fade, edge_weight=args.edge_weight,
-                      keepout_weight=args.keepout_weight, near_goal_m=args.near_goal,
-                      horizon=args.horizon, **_rollout_settings(args))  # fmt: skip
+                      trials=args.trials, seed=args.seed, max_steps=args.max_steps,
+                      max_examples=args.max_examples, plan=_plan_settings(args))  # fmt: skip
     result = run_study(cfg, args.out, workers=args.workers)
     print((Path(args.out) / "study.md").read_text())
     print(f"wrote {args.out}/study.md, study.json, study.png and trials/")
@@ -379,15 +280,19 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         measure_only=tuple(args.measure_only), rounds=args.rounds,
         trials_per_round=args.trials_per_round, heldout=args.heldout, seed=args.seed,
         action_noise=args.action_noise, finetune_iters=args.finetune_iters,
-        rollout_steps=args.rollout_steps, lr=args.lr, planner=args.planner,
-        max_steps=args.max_steps, visited_fraction=args.visited_fraction,
-        shaping_fade=args.shaping_fade, edge_weight=args.edge_weight,
-        keepout_weight=args.keepout_weight, near_goal_m=args.near_goal, horizon=args.horizon,
-        **_rollout_settings(args),
+        rollout_steps=args.rollout_steps, lr=args.lr, max_steps=args.max_steps,
+        visited_fraction=args.visited_fraction, plan=_plan_settings(args),
     )  # fmt: skip
     run_improve(cfg, args.out, workers=args.workers, **_backend(args))
     print((Path(args.out) / "improve.md").read_text())
     print(f"wrote {args.out}/improve.md, improve.json, improve.png and round_*/")
+    return 0
+
+
+def _cmd_config(args: argparse.Namespace) -> int:
+    from planner.settings import settings_toml
+
+    print(settings_toml(_plan_settings(args)), end="")
     return 0
 
 
@@ -570,7 +475,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--trials", type=int, default=30, help="closed-loop trials per model")
     s.add_argument("--max-examples", type=int, default=1000, help="held-out examples per model")
-    _shared_planning_options(s)
+    _planning_options(s)
     s.add_argument("--out", required=True, help="folder for study.md/.json/.png and trials/")
     s.set_defaults(run=_cmd_study)
 
@@ -619,10 +524,16 @@ def _parser() -> argparse.ArgumentParser:
         default=0.5,
         help="share of each fine-tuning batch drawn from the planner-visited data",
     )
-    _shared_planning_options(s)
+    _planning_options(s)
     s.add_argument("--out", required=True, help="folder of the rounds (resumable)")
     _backend_options(s)
     s.set_defaults(run=_cmd_improve)
+
+    s = sub.add_parser(
+        "config", help="print the planning settings as TOML (the defaults, or a preset's)"
+    )
+    _planning_options(s)
+    s.set_defaults(run=_cmd_config)
 
     s = sub.add_parser("bench", help="time the hot paths (medians over repeats)")
     s.add_argument("what", choices=["world", "data", "model", "planner", "sampling", "ddp"],
@@ -705,7 +616,6 @@ def _plan_push_parser() -> argparse.ArgumentParser:
         "disagreement the cost penalises), oracle or no-motion",
     )
     _planning_options(p)
-    p.add_argument("--planner", default="cem", help="cem, mppi, grad or sqp")
     p.add_argument("--seed", type=int, default=0, help="seed of the world and the planner")
     p.add_argument("--max-steps", type=int, default=60, help="control steps before giving up")
     p.add_argument("--device", default="cpu", help="device of a learned model")
@@ -730,8 +640,8 @@ def _cmd_plan_push(args: argparse.Namespace) -> int:
     x, y, yaw_deg = args.goal
     cfg = PushConfig(
         goal=(x, y, math.radians(yaw_deg)), scenario=args.scenario, object_index=args.object,
-        model=args.model, planner=args.planner, seed=args.seed, max_steps=args.max_steps,
-        device=args.device, **_planning_configs(args),
+        model=args.model, seed=args.seed, max_steps=args.max_steps, device=args.device,
+        plan=_plan_settings(args),
     )  # fmt: skip
 
     def show(rec) -> None:
@@ -769,13 +679,6 @@ def _cmd_plan_push(args: argparse.Namespace) -> int:
         )
         if result.others_moved_m is not None:
             print(f"the other objects moved at most {result.others_moved_m * 100:.1f} cm")
-        if result.glancing_gain is not None:
-            print(
-                f"the model's predicted motion was scaled by {result.motion_gain:.2f} for "
-                f"central pushes and {result.glancing_gain:.2f} for glancing ones at the end"
-            )
-        elif result.motion_gain is not None:
-            print(f"the model's predicted motion was scaled by {result.motion_gain:.2f} at the end")
     return 0 if result.success_tight else 1
 
 

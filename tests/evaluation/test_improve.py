@@ -10,6 +10,7 @@ import evaluation.improve as improve_mod
 import scenarios
 from evaluation.improve import ImproveConfig, run_improve
 from evaluation.trials import draw_trial
+from planner.presets import preset_settings
 from se3net.checkpoint import read_checkpoint
 from se3net.data import PushDataset
 from se3net.train import TrainConfig, train
@@ -180,40 +181,26 @@ def test_the_same_scenario_twice_is_refused_before_anything_is_written(
 def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(
     tiny_data, start_model, tmp_path
 ):
-    """An improve folder written before ``feedback``, ``contact_margin_m``, ``shaping_fade``,
-    ``motion_gain``, ``horizon``, ``edge_weight``, ``keepout_weight`` and ``near_goal_m``
-    existed planned on the grid with no gate and no gain, the shaping faded everywhere, 4 steps
-    ahead, no edge term, no keep-out term and no fade near the goal: it is refused with today's
-    defaults or an edge term, and continues with those."""
+    """An improve folder written before its planner settings were recorded (schema 1: no
+    ``plan``, none of ``feedback``, ``contact_margin_m``, ``shaping_fade``, ``horizon``,
+    ``keepout_weight`` and ``near_goal_m``) planned as the ``fade_behind`` planner's
+    predecessor: on the grid with no gate, the shaping faded everywhere, 4 steps ahead, no
+    keep-out term and no fade near the goal, that is the ``grid`` preset. It is refused with
+    today's defaults and continues with that preset."""
     cfg = _cfg(tiny_data, start_model)
-    later = ("feedback", "contact_margin_m", "shaping_fade", "motion_gain", "horizon",
-             "edge_weight", "keepout_weight", "near_goal_m")  # fmt: skip
-    meta = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in later}
+    meta = {k: v for k, v in dataclasses.asdict(cfg).items() if k != "plan"}
     (tmp_path / "imp").mkdir()
-    (tmp_path / "imp" / "config.json").write_text(json.dumps(meta))
-    with pytest.raises(ValueError, match="feedback: folder has 'grid'"):
+    (tmp_path / "imp" / "config.json").write_text(json.dumps({**meta, "planner": "cem"}))
+    with pytest.raises(ValueError, match="rollout.feedback: folder has 'grid'"):
         run_improve(cfg, tmp_path / "imp")
-    before = dataclasses.replace(cfg, feedback="grid", contact_margin_m=None, motion_gain="off")
-    with pytest.raises(ValueError, match="shaping_fade: folder has 'everywhere'"):
-        run_improve(before, tmp_path / "imp")
-    before = dataclasses.replace(before, shaping_fade="everywhere")
-    with pytest.raises(ValueError, match="horizon: folder has 4"):
-        run_improve(before, tmp_path / "imp")
-    before = dataclasses.replace(before, horizon=4)
-    with pytest.raises(ValueError, match="keepout_weight: folder has 0.0"):
-        run_improve(before, tmp_path / "imp")
-    before = dataclasses.replace(before, keepout_weight=0.0)
-    with pytest.raises(ValueError, match="near_goal_m: folder has 0.0"):
-        run_improve(before, tmp_path / "imp")
-    before = dataclasses.replace(before, near_goal_m=0.0)
-    with pytest.raises(ValueError, match="edge_weight: folder has 0.0"):
-        run_improve(dataclasses.replace(before, edge_weight=10.0), tmp_path / "imp")
+    before = dataclasses.replace(cfg, plan=preset_settings("grid"))
     assert run_improve(before, tmp_path / "imp")["rounds"]
     trials = json.loads((tmp_path / "imp" / "round_0" / "heldout" / "tiny" / "config.json")
                         .read_text())  # fmt: skip
-    assert trials["cost"]["shaping_fade"] == "everywhere" and trials["motion_gain"] == "off"
-    assert trials["planning"]["horizon"] == 4 and trials["cost"]["w_edge"] == 0.0
-    assert trials["cost"]["w_keepout"] == 0.0 and trials["cost"]["near_goal_m"] == 0.0
+    plan = trials["plan"]
+    assert plan["cost"]["shaping_fade"] == "everywhere" and plan["optimiser"]["horizon"] == 4
+    assert plan["cost"]["w_keepout"] == 0.0 and plan["cost"]["near_goal_m"] == 0.0
+    assert plan["rollout"] == {"feedback": "grid", "contact_margin_m": None}
 
 
 def test_finetuning_keeps_the_starting_network_and_its_loss(tiny_data, tmp_path):

@@ -14,6 +14,7 @@ from evaluation.study import (
     rank_correlations,
     run_study,
 )
+from planner.settings import resolve_settings
 from scenarios import InputError
 from se3net.train import TrainConfig, train
 
@@ -60,12 +61,12 @@ def test_model_labels_and_bad_settings():
         StudyConfig("tiny", "d", models=("runs/a/best.pt", "other/a/best.pt"))
     with pytest.raises(ValueError, match="must be positive"):
         StudyConfig("tiny", "d", models=("oracle",), trials=0)
-    with pytest.raises(ValueError, match="--contact-margin must be a distance"):
-        StudyConfig("tiny", "d", models=("oracle",), contact_margin_m=-0.01)
-    with pytest.raises(ValueError, match="--shaping-fade is one of behind, everywhere"):
-        StudyConfig("tiny", "d", models=("oracle",), shaping_fade="never")
+    with pytest.raises(ValueError, match="rollout.contact_margin_m must be a distance"):
+        resolve_settings(assignments=["rollout.contact_margin_m=-0.01"])
+    with pytest.raises(ValueError, match="cost.shaping_fade is one of behind, everywhere"):
+        resolve_settings(assignments=["cost.shaping_fade=never"])
     with pytest.raises(ValueError, match="horizon must be a positive integer, got 0"):
-        StudyConfig("tiny", "d", models=("oracle",), horizon=0)
+        resolve_settings(assignments=["optimiser.horizon=0"])
 
 
 @pytest.fixture(scope="module")
@@ -88,8 +89,10 @@ def test_study_end_to_end_on_tiny(study_data, tmp_path):
         progress=False,
     )  # fmt: skip
     models = ("oracle", "no-motion", f"early={run}/iter_000002.pt", f"late={run}/iter_000004.pt")
+    plan = resolve_settings(assignments=["cost.shaping_fade=everywhere"])
     cfg = StudyConfig("tiny", str(tiny_data), models=models, trials=2, max_steps=3,
-                      max_examples=40, shaping_fade="everywhere")  # fmt: skip
+                      max_examples=40, plan=plan)  # fmt: skip
+    rollout = plan.rollout
     result = run_study(cfg, tmp_path / "study")
     rows = {r["label"]: r for r in result["rows"]}
     assert list(rows) == ["oracle", "no-motion", "early", "late"]
@@ -108,14 +111,20 @@ def test_study_end_to_end_on_tiny(study_data, tmp_path):
     assert set(saved["rank_correlation_learned_only"]) == set(ACCURACY)
     assert (tmp_path / "study" / "study.png").read_bytes()[:4] == b"\x89PNG"
     trials = json.loads((tmp_path / "study" / "trials" / "late" / "config.json").read_text())
-    assert (trials["feedback"], trials["contact_margin_m"]) == (cfg.feedback, cfg.contact_margin_m)
-    assert trials["cost"]["shaping_fade"] == "everywhere"  # the study's, not the default
-    assert trials["planning"]["horizon"] == cfg.horizon == 3
+    assert trials["plan"]["rollout"] == {
+        "feedback": rollout.feedback,
+        "contact_margin_m": rollout.contact_margin_m,
+    }
+    assert trials["plan"]["cost"]["shaping_fade"] == "everywhere"  # the study's, not the default
+    assert trials["plan"]["optimiser"]["horizon"] == plan.optimiser.horizon == 3
     # a second run reuses the cached accuracy and the finished trials
     cache = tmp_path / "study" / "accuracy" / "late.json"
     cached = json.loads(cache.read_text())
-    assert cached["rolled"] == {"feedback": cfg.feedback, "contact_margin_m": cfg.contact_margin_m,
-                                "horizon": 3}  # fmt: skip
+    assert cached["rolled"] == {
+        "feedback": rollout.feedback,
+        "contact_margin_m": rollout.contact_margin_m,
+        "horizon": 3,
+    }
     cache.write_text(json.dumps({**cached, "horizon_pos_err_cm": 99.0}))
     again = run_study(cfg, tmp_path / "study")
     assert [r["success_tight"] for r in again["rows"]] == [

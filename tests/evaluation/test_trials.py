@@ -7,7 +7,7 @@ import pytest
 
 import evaluation.trials as trials_mod
 from evaluation.trials import TrialsConfig, draw_trial, run_trials, wilson
-from planner import CostConfig, PlannerConfig
+from planner import CostConfig, PlannerConfig, PlanSettings, RolloutConfig
 from scenarios import InputError, load_scenario
 from se3push.cli import main
 from sim import PushWorld
@@ -18,6 +18,31 @@ TIMING = ("replan_ms_median",)
 
 def _strip(rec):
     return {k: v for k, v in rec.items() if k not in TIMING}
+
+
+def _plan(**sections) -> PlanSettings:
+    """Today's settings with some sections replaced (``optimiser=``, ``cost=``, ``rollout=``,
+    ``planner=``)."""
+    return replace(PlanSettings(), **sections)
+
+
+def _as_schema_1(folder, drop=(), **old_fields):
+    """Rewrite ``folder``'s config.json as folders were written before the one settings object
+    (no schema: ``planner``, ``planning``, ``cost`` and the rollout settings at the top),
+    without the schema-1 keys ``drop`` names (``"cost.w_keepout"``, ``"feedback"``…) and with
+    ``old_fields`` added (``motion_gain=True``…)."""
+    meta = json.loads((folder / "config.json").read_text())
+    plan = meta.pop("plan")
+    del meta["schema"], meta["retired"]
+    old = {**meta, "planner": plan["planner"], "planning": plan["optimiser"], "cost": plan["cost"],
+           **plan["rollout"], "motion_gain": "off", **old_fields}  # fmt: skip
+    for key in drop:
+        *path, name = key.split(".")
+        node = old
+        for part in path:
+            node = node[part]
+        del node[name]
+    (folder / "config.json").write_text(json.dumps(old))
 
 
 def test_goals_follow_the_scenario_distribution():
@@ -142,23 +167,27 @@ def test_a_folder_of_other_planning_settings_is_refused(tmp_path):
     run_trials(cfg, tmp_path, progress=False)
     assert run_trials(replace(cfg, n=2), tmp_path, progress=False)["trials"] == 2
     with pytest.raises(InputError, match="cost.w_spread"):
-        run_trials(replace(cfg, cost=CostConfig(w_spread=0.0)), tmp_path, progress=False)
-    with pytest.raises(InputError, match="planning.horizon"):
-        run_trials(replace(cfg, planning=PlannerConfig(horizon=2)), tmp_path, progress=False)
+        run_trials(replace(cfg, plan=_plan(cost=CostConfig(w_spread=0.0))), tmp_path,
+                   progress=False)  # fmt: skip
+    with pytest.raises(InputError, match="optimiser.horizon"):
+        run_trials(replace(cfg, plan=_plan(optimiser=PlannerConfig(horizon=2))), tmp_path,
+                   progress=False)  # fmt: skip
     # a setting only another optimiser reads does not make other trials, even a setting the
     # folder's code did not have yet
     meta = json.loads((tmp_path / "config.json").read_text())
-    del meta["planning"]["grad_starts"]
+    del meta["plan"]["optimiser"]["grad_starts"]
     (tmp_path / "config.json").write_text(json.dumps(meta))
     grad = PlannerConfig(grad_starts=2, trust_radius=0.1, temperature=0.1)
-    assert run_trials(replace(cfg, n=3, planning=grad), tmp_path, progress=False)["trials"] == 3
+    run = run_trials(replace(cfg, n=3, plan=_plan(optimiser=grad)), tmp_path, progress=False)
+    assert run["trials"] == 3
     # nor does the planner's seed, which each trial replaces by its world's
-    reseeded = PlannerConfig(seed=5)
-    assert run_trials(replace(cfg, n=4, planning=reseeded), tmp_path, progress=False)["trials"] == 4
-    run_trials(replace(cfg, planner="grad"), tmp_path / "g", progress=False)
-    with pytest.raises(InputError, match="planning.grad_starts: folder has 4, this run asks for 2"):
-        run_trials(replace(cfg, planner="grad", planning=grad), tmp_path / "g", progress=False)
-    with pytest.raises(InputError, match="--spread-weight"):
+    reseeded = _plan(optimiser=PlannerConfig(seed=5))
+    assert run_trials(replace(cfg, n=4, plan=reseeded), tmp_path, progress=False)["trials"] == 4
+    run_trials(replace(cfg, plan=_plan(planner="grad")), tmp_path / "g", progress=False)
+    with pytest.raises(InputError, match="optimiser.grad_starts: folder has 4, this run asks f"):
+        run_trials(replace(cfg, plan=_plan(planner="grad", optimiser=grad)), tmp_path / "g",
+                   progress=False)  # fmt: skip
+    with pytest.raises(InputError, match="cost.w_spread must be a finite number"):
         CostConfig(w_spread=float("nan"))
     with pytest.raises(InputError, match="pos_scale_m must be positive"):
         CostConfig(pos_scale_m=0.0)
@@ -217,16 +246,12 @@ def test_an_old_folder_of_a_shipped_model_name_is_refused_and_of_a_lone_object_e
     weights now, so they are refused; the disturbance weight does not matter alone."""
     cfg = TrialsConfig("single_box", n=1, model="default", max_steps=1)
     run_trials(cfg, tmp_path / "old", progress=False)
-    meta = json.loads((tmp_path / "old" / "config.json").read_text())
-    del meta["model_sha256"], meta["cost"]["w_disturb"]
-    (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
+    _as_schema_1(tmp_path / "old", drop=("model_sha256", "cost.w_disturb"))
     with pytest.raises(InputError, match="predates the record of its model's weights"):
         run_trials(replace(cfg, n=2), tmp_path / "old", progress=False)
     lone = TrialsConfig("single_box", n=1, model="no-motion", max_steps=1)
     run_trials(lone, tmp_path / "lone", progress=False)
-    meta = json.loads((tmp_path / "lone" / "config.json").read_text())
-    del meta["model_sha256"], meta["cost"]["w_disturb"]
-    (tmp_path / "lone" / "config.json").write_text(json.dumps(meta))
+    _as_schema_1(tmp_path / "lone", drop=("model_sha256", "cost.w_disturb"))
     assert run_trials(replace(lone, n=2), tmp_path / "lone", progress=False)["trials"] == 2
 
 
@@ -257,11 +282,6 @@ def test_summaries_count_successes_by_the_pushed_objects_shape_mass_and_size():
         ("10-12 cm", {"tight": 1, "loose": 1, "trials": 1}),
         ("12-14 cm", {"tight": 0, "loose": 0, "trials": 1}),
     ]
-    assert s["median_motion_gain"] is None
-    fitted = [{**rec("box", 0.3, True, True), "motion_gain": g} for g in (1.0, 2.0, 4.0)]
-    s = summarize(fitted + [{**rec("T", 0.3, True, True), "motion_gain": None}])
-    assert s["by_shape"]["box"]["median_motion_gain"] == 2.0 and s["median_motion_gain"] == 2.0
-    assert "median_motion_gain" not in s["by_shape"]["T"]
 
 
 def test_path_efficiency_is_the_share_of_the_objects_travel_that_nears_the_goal():
@@ -316,8 +336,13 @@ def test_summaries_give_the_share_of_steps_planned_without_seeing_the_pusher():
 def test_ray_gives_the_same_records_as_the_local_pool_and_resumes(ray_local, tmp_path):
     """The same trial set on the local pool and on Ray (2 workers): the same records, in trial
     order, apart from the wall-clock replan time; a Ray run extends a local folder."""
-    cfg = TrialsConfig("tiny", n=3, model="oracle", max_steps=3,
-                       planning=PlannerConfig(samples=16, iterations=2, elites=4))  # fmt: skip
+    cfg = TrialsConfig(
+        "tiny",
+        n=3,
+        model="oracle",
+        max_steps=3,
+        plan=_plan(optimiser=PlannerConfig(samples=16, iterations=2, elites=4)),
+    )
     run_trials(cfg, tmp_path / "local", workers=2, progress=False)
     run_trials(cfg, tmp_path / "ray", workers=2, backend="ray", progress=False)
     run_trials(replace(cfg, n=1), tmp_path / "resumed", progress=False)
@@ -336,109 +361,100 @@ def test_ray_gives_the_same_records_as_the_local_pool_and_resumes(ray_local, tmp
 def test_the_contact_margin_makes_other_trials_of_a_learned_model_only(tmp_path):
     """A folder planned with one contact margin is not extended with another (or none); a
     folder from before the gate had none; the simulator backends ignore it."""
-    cfg = TrialsConfig("single_box", n=1, model="default", max_steps=1, contact_margin_m=0.01)
+    gated = _plan(rollout=RolloutConfig(contact_margin_m=0.01))
+    ungated = _plan(rollout=RolloutConfig(contact_margin_m=None))
+    cfg = TrialsConfig("single_box", n=1, model="default", max_steps=1, plan=gated)
     run_trials(cfg, tmp_path / "gated", progress=False)
     with pytest.raises(InputError, match="contact_margin_m: folder has 0.01, this run asks for"):
-        run_trials(replace(cfg, n=2, contact_margin_m=None), tmp_path / "gated", progress=False)
-    old = replace(cfg, contact_margin_m=None)
+        run_trials(replace(cfg, n=2, plan=ungated), tmp_path / "gated", progress=False)
+    old = replace(cfg, plan=ungated)
     run_trials(old, tmp_path / "old", progress=False)
-    meta = json.loads((tmp_path / "old" / "config.json").read_text())
-    del meta["contact_margin_m"]
-    (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
+    _as_schema_1(tmp_path / "old", drop=("contact_margin_m",))
     assert run_trials(replace(old, n=2), tmp_path / "old", progress=False)["trials"] == 2
-    still = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1, contact_margin_m=0.01)
+    still = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1, plan=gated)
     run_trials(still, tmp_path / "still", progress=False)
-    assert run_trials(replace(still, n=2, contact_margin_m=None), tmp_path / "still",
+    assert run_trials(replace(still, n=2, plan=ungated), tmp_path / "still",
                       progress=False)["trials"] == 2  # fmt: skip
-    with pytest.raises(InputError, match="--contact-margin must be a distance >= 0"):
-        replace(cfg, contact_margin_m=-0.01)
+    with pytest.raises(InputError, match="rollout.contact_margin_m must be a distance >= 0"):
+        RolloutConfig(contact_margin_m=-0.01)
 
 
-def test_a_folder_from_before_the_motion_gain_continues_only_without_it(tmp_path):
-    """Records from before ``--motion-gain`` planned with the model's own motion: such a folder
-    is refused with a gain and extends without it; the simulator backends ignore it, and
-    the setting is in the folder's config and on the command line."""
-    cfg = TrialsConfig("single_box", n=1, model="default", max_steps=1, motion_gain="off")
-    run_trials(cfg, tmp_path / "old", progress=False)
-    meta = json.loads((tmp_path / "old" / "config.json").read_text())
-    assert meta.pop("motion_gain") == "off"
-    (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
-    with pytest.raises(InputError, match="motion_gain: folder has 'off', this run asks for 'onl"):
-        run_trials(replace(cfg, n=2, motion_gain="online"), tmp_path / "old", progress=False)
-    assert run_trials(replace(cfg, n=2), tmp_path / "old", progress=False)["trials"] == 2
-    still = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1)
-    run_trials(still, tmp_path / "still", progress=False)
-    assert run_trials(replace(still, n=2, motion_gain="contact"), tmp_path / "still",
-                      progress=False)["trials"] == 2  # fmt: skip
-    with pytest.raises(InputError, match="--motion-gain must be one of off, online, contact"):
-        replace(cfg, motion_gain=True)  # what the setting was before it had three values
-    assert main(["trials", "--scenario", "tiny", "--n", "1", "--model", "no-motion",
-                 "--motion-gain", "contact", "--out", str(tmp_path / "cli")]) == 0  # fmt: skip
-    assert json.loads((tmp_path / "cli" / "config.json").read_text())["motion_gain"] == "contact"
-
-
-def test_a_folder_that_recorded_the_motion_gain_as_true_or_false_continues_as_online_or_off(
-    tmp_path,
+@pytest.mark.parametrize(("recorded", "extends"), [("off", True), (False, True), (None, True),
+                                                   ("online", False), (True, False),
+                                                   ("contact", False)])  # fmt: skip
+def test_a_folder_that_used_the_retired_motion_gain_is_read_but_not_extended(
+    recorded, extends, tmp_path
 ):
-    """Before the per-contact gain, folders recorded the one gain as true (``online``) or false
-    (``off``): each extends with its own setting and is refused with the others."""
+    """The motion gain (tried, not kept) left the package: a folder that planned without it
+    (off, recorded as false before it had three values, or not recorded at all) extends; one
+    that used it holds other trials and is refused, naming the retired option."""
     cfg = TrialsConfig("single_box", n=1, model="default", max_steps=1)
-    for recorded, setting in ((True, "online"), (False, "off")):
-        folder = tmp_path / setting
-        run_trials(replace(cfg, motion_gain=setting), folder, progress=False)
-        meta = json.loads((folder / "config.json").read_text())
-        (folder / "config.json").write_text(json.dumps({**meta, "motion_gain": recorded}))
-        with pytest.raises(InputError, match=f"folder has '{setting}', this run asks for 'cont"):
-            run_trials(replace(cfg, n=2, motion_gain="contact"), folder, progress=False)
-        run = run_trials(replace(cfg, n=2, motion_gain=setting), folder, progress=False)
-        assert run["trials"] == 2
+    run_trials(cfg, tmp_path / "old", progress=False)
+    _as_schema_1(tmp_path / "old", **({} if recorded is None else {"motion_gain": recorded}))
+    if recorded is None:
+        meta = json.loads((tmp_path / "old" / "config.json").read_text())
+        del meta["motion_gain"]
+        (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
+    if extends:
+        assert run_trials(replace(cfg, n=2), tmp_path / "old", progress=False)["trials"] == 2
+    else:
+        with pytest.raises(InputError, match="retired.motion_gain: folder has"):
+            run_trials(replace(cfg, n=2), tmp_path / "old", progress=False)
 
 
 def test_a_folder_from_before_the_shaping_fade_continues_only_as_everywhere(tmp_path):
-    """Records from before ``--shaping-fade`` faded the shaping term everywhere: such a folder
-    extends with ``everywhere`` and is refused with the default; a bad setting is refused
-    (exit 2 from the command line)."""
+    """Records from before the shaping fade was a setting faded the shaping term everywhere:
+    such a folder extends with ``everywhere`` and is refused with the default; a bad setting is
+    refused (exit 2 from the command line)."""
     cfg = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1,
-                       cost=CostConfig(shaping_fade="everywhere"))  # fmt: skip
+                       plan=_plan(cost=CostConfig(shaping_fade="everywhere")))  # fmt: skip
     run_trials(cfg, tmp_path / "old", progress=False)
-    meta = json.loads((tmp_path / "old" / "config.json").read_text())
-    del meta["cost"]["shaping_fade"]
-    (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
+    _as_schema_1(tmp_path / "old", drop=("cost.shaping_fade",))
     with pytest.raises(InputError, match="shaping_fade: folder has 'everywhere'"):
-        run_trials(replace(cfg, n=2, cost=CostConfig()), tmp_path / "old", progress=False)
+        run_trials(replace(cfg, n=2, plan=PlanSettings()), tmp_path / "old", progress=False)
     assert run_trials(replace(cfg, n=2), tmp_path / "old", progress=False)["trials"] == 2
-    with pytest.raises(InputError, match="--shaping-fade is one of behind, everywhere"):
+    with pytest.raises(InputError, match="cost.shaping_fade is one of behind, everywhere"):
         CostConfig(shaping_fade="never")
-    with pytest.raises(SystemExit) as e:
-        main(["trials", "--scenario", "tiny", "--n", "1", "--model", "no-motion",
-              "--shaping-fade", "never", "--out", str(tmp_path / "x")])  # fmt: skip
-    assert e.value.code == 2
+    assert (
+        main(
+            [
+                "trials",
+                "--scenario",
+                "tiny",
+                "--n",
+                "1",
+                "--model",
+                "no-motion",
+                "--set",
+                "cost.shaping_fade=never",
+                "--out",
+                str(tmp_path / "x"),
+            ]
+        )
+        == 2
+    )
 
 
-@pytest.mark.parametrize(("name", "flag"), [("w_edge", "--edge-weight"),
-                                            ("w_keepout", "--keepout-weight"),
-                                            ("near_goal_m", "--near-goal")])  # fmt: skip
-def test_a_folder_from_before_a_cost_term_continues_only_without_it(name, flag, tmp_path, capsys):
-    """Records from before ``--edge-weight`` had no edge term, those from before
-    ``--keepout-weight`` no keep-out term, and those from before ``--near-goal`` no fade near
-    the goal: such a folder extends with the setting at 0 and is refused with another; the
+@pytest.mark.parametrize("name", ["w_keepout", "near_goal_m"])
+def test_a_folder_from_before_a_cost_term_continues_only_without_it(name, tmp_path, capsys):
+    """Records from before the keep-out term had none, and those from before the fade near the
+    goal no fade: such a folder extends with the setting at 0 and is refused with another; the
     command line's value reaches the folder's cost, and a negative one is refused (exit 2)."""
     cfg = TrialsConfig("tiny", n=1, model="no-motion", max_steps=1,
-                       cost=CostConfig(**{name: 0.0}))  # fmt: skip
+                       plan=_plan(cost=CostConfig(**{name: 0.0})))  # fmt: skip
     run_trials(cfg, tmp_path / "old", progress=False)
-    meta = json.loads((tmp_path / "old" / "config.json").read_text())
-    del meta["cost"][name]
-    (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
+    _as_schema_1(tmp_path / "old", drop=(f"cost.{name}",))
     with pytest.raises(InputError, match=f"cost.{name}: folder has 0.0, this run asks for 10.0"):
-        run_trials(replace(cfg, n=2, cost=CostConfig(**{name: 10.0})), tmp_path / "old",
-                   progress=False)  # fmt: skip
+        run_trials(replace(cfg, n=2, plan=_plan(cost=CostConfig(**{name: 10.0}))),
+                   tmp_path / "old", progress=False)  # fmt: skip
     assert run_trials(replace(cfg, n=2), tmp_path / "old", progress=False)["trials"] == 2
     args = ["trials", "--scenario", "tiny", "--n", "1", "--model", "no-motion", "--max-steps",
             "1", "--out", str(tmp_path / "cli")]  # fmt: skip
-    assert main([*args, flag, "7"]) == 0
-    assert json.loads((tmp_path / "cli" / "config.json").read_text())["cost"][name] == 7.0
-    assert main([*args, flag, "-1"]) == 2
-    assert f"{flag} must be a finite number >= 0, got -1.0" in capsys.readouterr().err
+    assert main([*args, "--set", f"cost.{name}=7"]) == 0
+    config = json.loads((tmp_path / "cli" / "config.json").read_text())
+    assert config["plan"]["cost"][name] == 7.0
+    assert main([*args, "--set", f"cost.{name}=-1"]) == 2
+    assert f"cost.{name} must be a finite number >= 0, got -1.0" in capsys.readouterr().err
 
 
 def test_a_folder_whose_scenario_file_changed_is_refused_and_kept(tmp_path):

@@ -7,7 +7,7 @@ gymnasium = pytest.importorskip("gymnasium", reason='the scale extra: pip instal
 
 from integrations.env import ENV_ID, MPCPolicy, PushEnv  # noqa: E402
 from planner.loop import PushConfig, run_push  # noqa: E402
-from tests.planner.test_loop import _half_oracle_push, _HalfOracle, _nearby_goal  # noqa: E402
+from tests.planner.test_loop import _nearby_goal  # noqa: E402
 
 pytestmark = pytest.mark.scale
 
@@ -61,32 +61,6 @@ def test_the_mpc_planner_drives_the_environment_as_the_closed_loop_does():
     assert rewards[-1] > rewards[0] and rewards[-1] > -2
     loop = run_push(PushConfig(goal=goal, scenario="tiny", model="oracle", max_steps=20))
     assert actions == [r.action for r in loop.records]
-
-
-def test_the_policy_fits_the_motion_gain_as_the_loop_does(monkeypatch):
-    """Driving the environment, the policy of a model that predicts half of each motion takes
-    the closed loop's actions and learns its gain from the steps it took."""
-    import planner.loop as loop
-    from planner import PlannerConfig
-
-    pushed = _half_oracle_push(monkeypatch, "online")
-    env = gymnasium.make(ENV_ID, scenario="tiny", max_steps=30)
-    monkeypatch.setattr(loop, "make_dynamics", lambda *a, **k: _HalfOracle(env.unwrapped.world))
-    obs, _ = env.reset(options={"world_seed": 0, "goal": _nearby_goal(-0.08)})
-    planning = PlannerConfig(horizon=4, samples=12, iterations=2)  # _half_oracle_push's
-    policy = MPCPolicy(env, model="default", planning=planning, motion_gain="online")
-    actions = []
-    while True:
-        actions.append(policy(obs).tolist())
-        obs, _, terminated, truncated, _ = env.step(np.array(actions[-1]))
-        if terminated or truncated:
-            break
-    policy(obs)  # the last step's motion counts at the next call
-    assert actions == [r.action for r in pushed.records]
-    assert (
-        policy.planner.dynamics.gain == pytest.approx(pushed.motion_gain)
-        and 1.7 < pushed.motion_gain
-    )
 
 
 def test_bad_settings_are_refused():

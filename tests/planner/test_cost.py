@@ -106,32 +106,6 @@ def test_the_disturbance_term_keeps_the_other_objects_in_place():
     assert moved[0.0] > 0.03 and moved[1.0] < 0.005, moved
 
 
-def test_the_edge_term_stops_the_object_where_the_pusher_can_still_get_round_it():
-    """A goal near the table's edge: without the edge term the planner carries the disk onto
-    it; with it, the disk stops where the pusher can still reach its far side inside the
-    workspace (the table less the margin, less the disk's radius and the pusher's)."""
-    import dataclasses
-
-    from planner import PlannerConfig, make_planner
-    from tests.planner.toy import DISK, TOY_COST, CarriedDisk, toy_state
-
-    scenario = load_scenario("single_box")
-    state = toy_state(start=(0.0, 0.18))
-    reach = (scenario.table.size_m[1] / 2 - TOY_COST.workspace_margin_m
-             - DISK.footprint_radius_m - scenario.arm.pusher_radius_m)  # fmt: skip
-    assert 0.18 < reach < 0.26
-    end = {}
-    for w in (0.0, 10.0):
-        cost = PushCost(scenario, torch.tensor([0.0, 0.26, 0.0]),
-                        dataclasses.replace(TOY_COST, w_edge=w))  # fmt: skip
-        cfg = PlannerConfig(horizon=8, samples=256, elites=16, iterations=8, colour=0.0, shrink=1.0)
-        _, info = make_planner("cem", CarriedDisk(scenario.action.dt_control_s), cost, scenario,
-                               cfg).plan(state)  # fmt: skip
-        end[w] = float(info.predicted_poses[-1, 1])
-    assert end[0.0] > 0.25, end
-    assert reach - 0.01 < end[10.0] < reach + 0.005, (end, reach)
-
-
 def test_the_keepout_term_takes_a_blind_planner_round_the_object_not_through_it():
     """A model blind to contact (the object never moves) and a pusher just off a large box's
     face on the goal's side: without the keep-out term the plan heads straight for the way round

@@ -7,12 +7,9 @@ import torch
 
 from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
 from planner.dynamics import (
-    MOTION_GAIN_RANGES,
-    CalibratedDynamics,
     EnsembleDynamics,
     LearnedDynamics,
     NoMotionDynamics,
-    Rollout,
     contact_gate,
     integrate_pusher,
     planar_fit,
@@ -344,38 +341,6 @@ def test_the_contact_gate_keeps_the_shipped_model_s_push_and_drops_its_motion_fr
     assert moved(past, 0.01) < 1e-7
 
 
-def test_a_motion_gain_scales_the_pushed_object_s_predicted_change_and_nothing_else():
-    """With gain 2 the carried disk is predicted to move twice as far from where it starts
-    (and turn twice as far, from a start yaw that is not 0); the pusher, the other objects,
-    the clouds and the spread are the model's own."""
-    turning = _Carried((0.5, 0.5))
-    start = torch.tensor([0.05, -0.03, 3.0])
-    state = dataclasses.replace(toy_state((0.05, -0.03)), object_pose=start)
-    U = 0.1 * torch.randn(5, 4, 2, generator=torch.Generator().manual_seed(1))
-    model = turning.rollout(state, U)
-    model = dataclasses.replace(
-        model, object_poses=model.object_poses + torch.tensor([0.0, 0.0, 0.1]),
-        other_poses=torch.rand(5, 4, 2, 3), clouds=torch.rand(5, 4, 3, 2, 2),
-        spread=torch.rand(5, 4),
-    )  # fmt: skip
-
-    class Turning:
-        name, differentiable = "toy", True
-
-        def rollout(self, state, actions, *, clouds=False):
-            return model
-
-    calibrated = CalibratedDynamics(Turning())
-    assert calibrated.rollout(state, U) is model  # gain 1: the model's own
-    calibrated.gains = [2.0]
-    r = calibrated.rollout(state, U)
-    moved = model.object_poses[..., :2] - start[:2]
-    torch.testing.assert_close(r.object_poses[..., :2], start[:2] + 2 * moved)
-    torch.testing.assert_close(r.object_poses[..., 2], torch.full((5, 4), 3.2))
-    for same in ("pusher_xy", "other_poses", "clouds", "spread"):
-        assert getattr(r, same) is getattr(model, same)
-
-
 def _observed(calibrated, ratio, steps, size_m=0.01, turn=0.0, central=True):
     """Feed ``steps`` executed steps of a model that predicts ``size_m`` along x where the
     object moves ``ratio`` times as far (and turns ``turn`` rad where none is predicted); the
@@ -394,73 +359,8 @@ def _observed(calibrated, ratio, steps, size_m=0.01, turn=0.0, central=True):
     return calibrated.gains[kind]
 
 
-def test_the_motion_gain_is_fitted_to_what_the_executed_steps_did():
-    """The gain tends to the ratio of actual to predicted motion as steps accumulate, shrunk
-    toward 1 by its prior, and keeps within its range; a step predicted to be tiny hardly
-    moves it; motion the model had in another direction does not count as motion it missed."""
-    new = lambda: CalibratedDynamics(_Carried((1.0, 1.0)))  # noqa: E731
-    assert _observed(new(), 1.0, 10) == pytest.approx(1.0)
-    few, many = _observed(new(), 3.0, 2), _observed(new(), 3.0, 20)
-    assert 1.5 < few < many < 3.0 and many > 2.9
-    assert _observed(new(), 10.0, 30) == MOTION_GAIN_RANGES["online"][1]
-    assert _observed(new(), 0.0, 30) == MOTION_GAIN_RANGES["online"][0]  # phantom pushes
-    assert _observed(new(), 10.0, 1, size_m=0.0005) < 1.1
-    turned = _observed(new(), 1.0, 20, turn=0.2)  # a turn nobody predicted: not more motion
-    assert turned == pytest.approx(1.0)
-
-
-def test_per_contact_gains_are_fitted_to_their_own_kind_of_step():
-    """With a gain per kind of contact, central pushes that move the object twice as far as
-    predicted and glancing ones that move it a fifth as far each teach their own gain (the
-    glancing one below the single gain's floor); one gain fitted to the same steps ends
-    between the two, wrong for both."""
-    per_kind, one = (CalibratedDynamics(_Carried((1.0, 1.0)), m) for m in ("contact", "online"))
-    for _ in range(15):
-        for calibrated in (per_kind, one):
-            _observed(calibrated, 2.0, 1, central=True)
-            _observed(calibrated, 0.2, 1, central=False)
-    assert 1.95 < per_kind.gain < 2.0 and 0.2 < per_kind.glancing_gain < 0.22
-    assert 1.0 < one.gain < 1.2 and one.glancing_gain is None
-    assert _observed(CalibratedDynamics(_Carried((1.0, 1.0)), "contact"), 0.0, 30,
-                     central=False) == MOTION_GAIN_RANGES["contact"][0]  # fmt: skip
-
-
-def test_per_contact_gains_scale_each_predicted_step_by_its_kind():
-    """A rolled-out step whose pusher heads at the object's centre as predicted before that
-    step is scaled by the central gain, a step across it by the glancing gain; the scaled
-    steps add up from the start pose."""
-    state = dataclasses.replace(toy_state((0.0, 0.0)), object_pose=torch.tensor([0.05, 0.0, 0.0]))
-    pusher = torch.tensor([[[0.01, 0.0], [0.01, 0.01]]])  # at the centre, then across
-    poses = torch.tensor([[[0.06, 0.0, 0.0], [0.06, 0.004, 0.1]]])
-
-    class Fixed:
-        name, differentiable = "toy", True
-
-        def rollout(self, state, actions, *, clouds=False):
-            return Rollout(poses, pusher)
-
-    calibrated = CalibratedDynamics(Fixed(), "contact")
-    calibrated.gains = [0.5, 3.0]  # glancing, central
-    r = calibrated.rollout(state, torch.zeros(1, 2, 2))
-    torch.testing.assert_close(r.object_poses, torch.tensor([[[0.08, 0.0, 0.0],
-                                                             [0.08, 0.002, 0.05]]]))  # fmt: skip
-    calibrated.gains = [3.0, 0.5]  # the kinds the other way round
-    r = calibrated.rollout(state, torch.zeros(1, 2, 2))
-    torch.testing.assert_close(r.object_poses[0, -1], torch.tensor([0.055, 0.012, 0.3]))
-
-
 def test_an_ensemble_with_an_empty_name_is_refused():
     from scenarios import InputError
 
     with pytest.raises(InputError, match="an empty name between the"):
         make_dynamics("se3net", load_scenario("single_box"), model="default+")
-
-
-def test_a_step_with_no_usable_prediction_leaves_the_motion_gain_as_it_was():
-    gain = CalibratedDynamics(_Carried((1.0, 1.0)))
-    before = np.zeros(3)
-    pusher = (np.array([-0.05, 0.0]), np.array([-0.04, 0.0]))
-    gain.observe(before, np.array([0.01, 0.0, 0.0]), np.array([0.02, 0.0, 0.0]), 0.04, pusher)
-    fitted = gain.gain
-    gain.observe(before, np.array([np.nan, 0.0, 0.0]), np.array([0.02, 0.0, 0.0]), 0.04, pusher)
-    assert gain.gain == fitted and np.isfinite(fitted) and fitted > 1

@@ -1,11 +1,10 @@
 import json
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from planner import CostConfig, PlannerConfig
+from planner import CostConfig, PlannerConfig, PlanSettings
 from planner.loop import PushConfig, run_push
 from scenarios import load_scenario
 from se3push.cli import plan_push_main
@@ -94,8 +93,8 @@ def test_plan_push_json_and_exit_codes(capsys):
             "unknown planner 'ilqr'",
         ),
         (
-            ["--goal", "0.05", "0.0", "0", "--model", "oracle", "--spread-weight", "-1"],
-            "--spread-weight must be a finite number >= 0, got -1.0",
+            ["--goal", "0.05", "0.0", "0", "--model", "oracle", "--set", "cost.w_spread=-1"],
+            "cost.w_spread must be a finite number >= 0, got -1.0",
         ),
         (["--goal", "0.05", "0.0", "0", "--seed", "-1"], "--seed must be an integer in [0, 2**63)"),
         (["--goal", "0.05", "0.0", "0", "--seed", str(2**64)], "got 18446744073709551616"),
@@ -127,8 +126,9 @@ def test_the_planning_and_cost_settings_reach_the_planner(monkeypatch):
     goal = _nearby_goal()
     run_push(PushConfig(goal=goal, scenario="tiny", model="no-motion", max_steps=1, seed=5))
     run_push(PushConfig(goal=goal, scenario="tiny", model="no-motion", max_steps=1, seed=5,
-                        cost=CostConfig(w_spread=0.25),
-                        planning=PlannerConfig(horizon=2, samples=9, seed=99)))  # fmt: skip
+                        plan=PlanSettings(cost=CostConfig(w_spread=0.25),
+                                          optimiser=PlannerConfig(horizon=2, samples=9,
+                                                                  seed=99))))  # fmt: skip
     assert seen == [(1.0, 3, 32, 5), (0.25, 2, 9, 5)]  # the planner's seed is the push's
 
 
@@ -143,8 +143,9 @@ def test_the_next_plan_is_smoothed_from_the_noisy_action_the_world_ran(monkeypat
         return planners[-1]
 
     monkeypatch.setattr(loop, "make_planner", spy)
+    quick = PlanSettings(optimiser=PlannerConfig(samples=8, iterations=1))
     cfg = PushConfig(goal=_nearby_goal(), scenario="tiny", model="no-motion", max_steps=2,
-                     action_noise=0.3, planning=PlannerConfig(samples=8, iterations=1))  # fmt: skip
+                     action_noise=0.3, plan=quick)  # fmt: skip
     result = run_push(cfg)
     ran = np.array(result.records[-1].action, dtype=np.float32)
     np.testing.assert_array_equal(planners[0].last_action.numpy(), ran)
@@ -155,9 +156,9 @@ def test_each_step_records_whether_the_pusher_was_seen_when_it_was_planned(monke
 
     # a camera that loses sight of the pusher from 0.2 s on: steps planned at 0, 0.15, 0.3 s
     monkeypatch.setattr(Observation, "pusher_seen", property(lambda obs: obs.time_s < 0.2))
-    quick = PlannerConfig(samples=8, iterations=1)
+    quick = PlanSettings(optimiser=PlannerConfig(samples=8, iterations=1))
     result = run_push(PushConfig(goal=_nearby_goal(), scenario="tiny", model="no-motion",
-                                 max_steps=3, planning=quick))  # fmt: skip
+                                 max_steps=3, plan=quick))  # fmt: skip
     assert [r.pusher_seen for r in result.records] == [True, True, False]
     assert [s["pusher_seen"] for s in result.summary()["per_step"]] == [True, True, False]
 
@@ -182,66 +183,3 @@ def test_results_report_how_far_the_other_objects_were_moved():
                                 model="no-motion", max_steps=2))  # fmt: skip
     assert alone.others_moved_m is None and among.others_moved_m is not None
     assert "others_moved_m" in among.summary()
-
-
-class _HalfOracle:
-    """The simulator predicting half of every motion of the pushed object: a model that
-    under-predicts by a known factor."""
-
-    def __init__(self, world):
-        from planner.dynamics import OracleDynamics
-
-        self.oracle = OracleDynamics(world)
-        self.name, self.differentiable = "half", False
-
-    def rollout(self, state, actions, *, clouds=False):
-        out = self.oracle.rollout(state, actions)
-        start = state.object_pose.to(out.object_poses)
-        return replace(out, object_poses=start + 0.5 * (out.object_poses - start))
-
-
-def _half_oracle_push(monkeypatch, motion_gain):
-    """A push on the tiny scenario whose 'learned' model is :class:`_HalfOracle` (4 steps
-    ahead: with 3 the push is over before enough steps move the object to check the gain)."""
-    import planner.loop as loop
-
-    worlds = []
-
-    class Kept(PushWorld):
-        def __init__(self, scenario):
-            super().__init__(scenario)
-            worlds.append(self)
-
-    monkeypatch.setattr(loop, "PushWorld", Kept)
-    monkeypatch.setattr(loop, "make_dynamics", lambda *a, **k: _HalfOracle(worlds[-1]))
-    cfg = PushConfig(goal=_nearby_goal(-0.08), scenario="tiny", model="default", max_steps=30,
-                     planning=PlannerConfig(horizon=4, samples=12, iterations=2),
-                     motion_gain=motion_gain)  # fmt: skip
-    return run_push(cfg)
-
-
-def test_the_loop_fits_the_motion_gain_to_a_model_that_predicts_half_the_motion(monkeypatch):
-    """The executed steps teach the loop's gain that the model predicts half of each motion:
-    it ends near 2, and the steps planned with it predict the motion that then happens (the
-    model alone predicts half of it)."""
-    fitted = _half_oracle_push(monkeypatch, "online")
-    alone = _half_oracle_push(monkeypatch, "off")
-    assert alone.motion_gain is None and 1.7 < fitted.motion_gain < 2.05
-
-    def ratio(result):  # predicted over actual motion, over the steps that moved the object
-        moved = [r for r in result.records if r.actual_disp_m > 0.003][2:]  # the gain fitted
-        assert len(moved) >= 3
-        return sum(r.predicted_disp_m for r in moved) / sum(r.actual_disp_m for r in moved)
-
-    assert ratio(alone) == pytest.approx(0.5, abs=0.05)
-    assert ratio(fitted) == pytest.approx(1.0, abs=0.15)
-
-
-def test_the_loop_fits_both_kinds_of_contact_to_a_model_that_predicts_half_the_motion(
-    monkeypatch,
-):
-    """With a gain per kind of contact, the executed steps of both kinds teach theirs that the
-    half-motion model predicts half: each ends well above 1 (the glancing one, fitted to fewer
-    steps, nearer its prior)."""
-    per_kind = _half_oracle_push(monkeypatch, "contact")
-    assert 1.7 < per_kind.motion_gain < 2.05 and 1.5 < per_kind.glancing_gain < 2.05

@@ -234,37 +234,38 @@ def test_an_unknown_feedback_is_exit_code_2_naming_the_known_ones(
         "eval": ["eval", "--data", str(tiny_data), "--checkpoints", "default",
                  "--out", str(tmp_path / "e")],
     }.get(command, [])  # fmt: skip
+    planning = command in ("trials", "plan-push")  # the planner's rollout is a setting
+    bad = ["--set", "rollout.feedback=mirrored"] if planning else ["--feedback", "mirrored"]
     if command == "plan-push":
-        code = plan_push_main(["--goal", "0.16", "0", "90", "--feedback", "mirrored"])
+        code = plan_push_main(["--goal", "0.16", "0", "90", *bad])
     else:
-        code = main([*args, "--feedback", "mirrored"])
+        code = main([*args, *bad])
     assert code == 2
-    assert "--feedback must be one of grid, rendered, got 'mirrored'" in capsys.readouterr().err
+    name = "rollout.feedback" if planning else "--feedback"
+    assert f"{name} must be one of grid, rendered, got 'mirrored'" in capsys.readouterr().err
     assert not (tmp_path / "t" / "trials.jsonl").exists()  # refused before any trial ran
 
 
 @pytest.mark.parametrize("margin", ["-0.01", "nan"])
 def test_a_bad_contact_margin_is_exit_code_2(margin, tmp_path, capsys):
-    code = main(["trials", "--scenario", "single_box", "--n", "1", "--contact-margin", margin,
+    bad = ["--set", f"rollout.contact_margin_m={margin}"]
+    code = main(["trials", "--scenario", "single_box", "--n", "1", *bad,
                  "--out", str(tmp_path / "t")])  # fmt: skip
     assert code == 2
-    assert "--contact-margin must be a distance >= 0 in metres" in capsys.readouterr().err
-    assert plan_push_main(["--goal", "0.16", "0", "90", "--contact-margin", margin]) == 2
+    assert "rollout.contact_margin_m must be a distance >= 0 in metres" in capsys.readouterr().err
+    assert plan_push_main(["--goal", "0.16", "0", "90", *bad]) == 2
     assert not (tmp_path / "t" / "trials.jsonl").exists()
 
 
 def test_the_contact_margin_is_a_distance_or_off(tmp_path, capsys):
     base = ["trials", "--scenario", "tiny", "--n", "1", "--max-steps", "1", "--model", "no-motion"]
-    with pytest.raises(SystemExit) as e:
-        main([*base, "--contact-margin", "1cm", "--out", str(tmp_path / "bad")])
-    assert e.value.code == 2
-    assert "--contact-margin takes a distance in metres or 'off', got '1cm'" in (
-        capsys.readouterr().err
-    )
+    margin = "rollout.contact_margin_m"
+    assert main([*base, "--set", f"{margin}=1cm", "--out", str(tmp_path / "bad")]) == 2
+    assert f"setting {margin} must be off or float, got '1cm'" in capsys.readouterr().err
     for value, recorded in (("off", None), ("0.02", 0.02)):
-        assert main([*base, "--contact-margin", value, "--out", str(tmp_path / value)]) == 0
+        assert main([*base, "--set", f"{margin}={value}", "--out", str(tmp_path / value)]) == 0
         config = json.loads((tmp_path / value / "config.json").read_text())
-        assert config["contact_margin_m"] == recorded
+        assert config["plan"]["rollout"]["contact_margin_m"] == recorded
 
 
 def test_an_unexpected_error_inside_a_command_shows_its_traceback(monkeypatch):

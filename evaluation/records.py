@@ -1,0 +1,100 @@
+"""The record schema: what a run folder's ``config.json`` holds, and the one migration from
+every earlier layout to today's.
+
+Schema 2 (today's): the run's own fields (scenario, n, model, seed, max_steps…) and ``plan``,
+the nested planning settings (``planner.settings.PlanSettings``: ``planner``, ``optimiser``,
+``cost``, ``rollout``), plus ``retired``: settings of options since removed from the package,
+where the run used one (such a folder can be read and compared, not extended).
+
+Schema 1 (no ``schema`` key) is every folder from before: trial folders nested the optimiser's
+settings (``planning``) and the cost's (``cost``) beside flat rollout settings (``feedback``,
+``contact_margin_m``, ``motion_gain``); study and improve runs flattened a few of them under
+other names (``horizon``, ``keepout_weight``, ``edge_weight``…). A setting a record lacks was
+added after it was made, so the record ran as the code ran before the setting existed:
+:data:`BEFORE` says how.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import asdict
+from typing import Any
+
+from planner.settings import PlanSettings
+
+SCHEMA = 2
+"""the layout of today's records"""
+
+BEFORE = {
+    "optimiser": {"horizon": 4},
+    "cost": {"w_disturb": 0.0, "shaping_fade": "everywhere", "w_keepout": 0.0, "near_goal_m": 0.0},
+    "rollout": {"feedback": "grid", "contact_margin_m": None},
+}
+"""how a record that lacks a setting ran: 4 steps ahead (study and improve runs from before
+they recorded the horizon); no disturbance term, the shaping term faded wherever the pusher
+was, no keep-out term, neither faded near the goal; predicted clouds fed back on the grid,
+every predicted motion counted"""
+
+RETIRED = {"motion_gain": "off", "w_edge": 0.0}
+"""options removed from the package, with the value that means "not used" (a gain fitted to
+the push's own steps; a term keeping the object off the table's edge: docs/experiments)"""
+
+FLAT = {
+    "horizon": ("optimiser", "horizon"),
+    "shaping_fade": ("cost", "shaping_fade"),
+    "keepout_weight": ("cost", "w_keepout"),
+    "near_goal_m": ("cost", "near_goal_m"),
+    "edge_weight": ("cost", "w_edge"),
+    "feedback": ("rollout", "feedback"),
+    "contact_margin_m": ("rollout", "contact_margin_m"),
+}
+"""schema-1 fields outside the nested tables, and where they belong"""
+
+
+def _motion_gain(recorded: Any) -> Any:
+    """Records from before the per-contact gain stored True (one gain, ``online``) or False."""
+    if isinstance(recorded, bool):
+        return "online" if recorded else "off"
+    return recorded
+
+
+def migrate_config(meta: dict[str, Any]) -> dict[str, Any]:
+    """A run folder's ``config.json`` of any schema, in today's (a new dict; today's records
+    are returned as they are)."""
+    if meta.get("schema") == SCHEMA:
+        return meta
+    old = copy.deepcopy(meta)
+    flat = "planning" not in old  # a study or improve run: the rest were the defaults
+    plan: dict[str, Any] = {
+        "planner": old.pop("planner", "cem"),
+        "optimiser": old.pop("planning", {}),
+        "cost": old.pop("cost", {}),
+        "rollout": {},
+    }
+    for name, (section, field) in FLAT.items():
+        if name in old:
+            plan[section][field] = old.pop(name)
+    for section, fields in BEFORE.items():
+        for field, value in fields.items():
+            # a flat run could only have lacked the settings it flattened; the rest were the
+            # defaults of the time, today's
+            if not flat or (section, field) in FLAT.values():
+                plan[section].setdefault(field, value)
+    if flat:
+        defaults = asdict(PlanSettings())
+        for section in ("optimiser", "cost", "rollout"):
+            plan[section] = {**defaults[section], **plan[section]}
+    retired = {}
+    gain = _motion_gain(old.pop("motion_gain", RETIRED["motion_gain"]))
+    if gain != RETIRED["motion_gain"]:
+        retired["motion_gain"] = gain
+    edge = plan["cost"].pop("w_edge", RETIRED["w_edge"])
+    if edge != RETIRED["w_edge"]:
+        retired["w_edge"] = edge
+    return {"schema": SCHEMA, **old, "plan": plan, "retired": retired}
+
+
+def migrate_record(rec: dict[str, Any]) -> dict[str, Any]:
+    """A trial record (a ``trials.jsonl`` line) of any schema, in today's: the fields of retired
+    options dropped (their configuration says what the run used)."""
+    return {k: v for k, v in rec.items() if k not in ("motion_gain", "glancing_gain")}

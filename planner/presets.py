@@ -1,0 +1,52 @@
+"""Named planners: today's default and the earlier ones that committed records were made with.
+
+A record folder made with an earlier planner is reproduced with ``--preset NAME`` (its
+``config.json`` holds the settings in full; ``se3push config --preset NAME`` prints them).
+Each earlier planner is today's with what it lacked taken away, newest first.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from planner.settings import PlanSettings, RolloutConfig
+from scenarios import InputError
+
+
+def _before(s: PlanSettings, *, optimiser: dict | None = None, cost: dict | None = None,
+            rollout: dict | None = None) -> PlanSettings:  # fmt: skip
+    return replace(
+        s,
+        optimiser=replace(s.optimiser, **(optimiser or {})),
+        cost=replace(s.cost, **(cost or {})),
+        rollout=replace(s.rollout, **(rollout or {})),
+    )
+
+
+DEFAULT = PlanSettings()
+KEEPOUT = _before(DEFAULT, cost={"near_goal_m": 0.0})
+HORIZON3 = _before(KEEPOUT, cost={"w_keepout": 0.0})
+FADE_BEHIND = _before(HORIZON3, optimiser={"horizon": 4})
+RENDERED_GATE = _before(FADE_BEHIND, cost={"shaping_fade": "everywhere"})
+GRID = replace(RENDERED_GATE, rollout=RolloutConfig(feedback="grid", contact_margin_m=None))
+
+PRESETS: dict[str, PlanSettings] = {
+    "default": DEFAULT,
+    "keepout": KEEPOUT,
+    "horizon3": HORIZON3,
+    "fade_behind": FADE_BEHIND,
+    "rendered_gate": RENDERED_GATE,
+    "grid": GRID,
+}
+"""today's planner (``default``), then each planner before it, named as the record folders of
+docs/results/trials/final name them: ``keepout``, the keep-out term not faded near the goal;
+``horizon3``, no keep-out term; ``fade_behind``, 4 steps ahead; ``rendered_gate``, the shaping
+term faded by predicted motion wherever the pusher is; ``grid``, predicted clouds fed back on
+the observed grid and every predicted motion counted (no contact gate)"""
+
+
+def preset_settings(name: str) -> PlanSettings:
+    """The settings of preset ``name``, or an InputError listing the presets."""
+    if name not in PRESETS:
+        raise InputError(f"unknown preset {name!r}; known: {', '.join(PRESETS)}")
+    return PRESETS[name]
