@@ -87,10 +87,6 @@ class TrainConfig:
     later_from: int = 1
     """index of the first of the later data folders (1: the second and later; 2 when two
     exploration folders come first)"""
-    deflected_fraction: float = 0.0
-    """share of each batch drawn from the deflected examples (``PushDataset.deflected``: an
-    object's step turned away from the pusher's motion), so the network sees more of the
-    pushes whose direction it gets wrong; 0: none drawn apart"""
     stride: int = 1
     """the network sees every stride-th pixel of the camera's image in each direction (2: a
     32x32 planning-resolution model of 64x64 data, about 4x fewer pixels a prediction)"""
@@ -121,15 +117,6 @@ class TrainConfig:
             raise InputError(f"--lr must be positive, got {self.lr}")
         if not 0.0 <= self.later_fraction < 1.0:
             raise InputError(f"--later-fraction must be in [0, 1), got {self.later_fraction}")
-        if not 0.0 <= self.deflected_fraction < 1.0:
-            raise InputError(
-                f"--deflected-fraction must be in [0, 1), got {self.deflected_fraction}"
-            )
-        if self.later_fraction + self.deflected_fraction >= 1.0:
-            raise InputError(
-                "--later-fraction and --deflected-fraction share each batch: together they "
-                f"must be below 1, got {self.later_fraction} + {self.deflected_fraction}"
-            )
         if self.later_from < 1:
             raise InputError(f"--later-from must be positive, got {self.later_from}")
         folders = 1 if isinstance(self.data, str | Path) else len(self.data)
@@ -156,7 +143,7 @@ class TrainConfig:
 
 _LATER_SETTINGS = (
     "stride", "loss", "noise", "controls", "valid_channel", "full_res_head", "later_from",
-    "feedback", "deflected_fraction",
+    "feedback",
 )  # fmt: skip
 """settings added after runs were made: a run that has none ran at its default"""
 
@@ -279,30 +266,16 @@ def validate(
 
 def draw_batch(ds: PushDataset, cfg: TrainConfig, rng: np.random.Generator) -> np.ndarray:
     """Indices of one batch: uniform over all examples; or with ``cfg.later_fraction`` of it
-    drawn from the later data folders, so a small pool of planner-visited steps is seen; and
-    with ``cfg.deflected_fraction`` of it from the deflected examples (of any folder)."""
-    if cfg.later_fraction == 0 and cfg.deflected_fraction == 0:
+    drawn from the later data folders, so a small pool of planner-visited steps is seen."""
+    if cfg.later_fraction == 0:
         return rng.integers(len(ds), size=cfg.batch)
-    pools, sizes = [], []
-    if cfg.deflected_fraction > 0:
-        deflected = np.flatnonzero(ds.deflected())
-        if len(deflected) == 0:
-            raise DataError("--deflected-fraction: no training example has a deflected step")
-        pools.append(deflected)
-        sizes.append(round(cfg.deflected_fraction * cfg.batch))
-    if cfg.later_fraction > 0:
-        later = np.flatnonzero(ds.source >= cfg.later_from)
-        if len(later) == 0:
-            raise DataError("--later-fraction: the later --data folders have no training examples")
-        pools.append(later)
-        sizes.append(round(cfg.later_fraction * cfg.batch))
-        first = np.flatnonzero(ds.source < cfg.later_from)
-    else:
-        first = np.arange(len(ds))
-    pools.insert(0, first)
-    sizes.insert(0, cfg.batch - sum(sizes))
-    drawn = [pool[rng.integers(len(pool), size=n)] for pool, n in zip(pools, sizes, strict=True)]
-    return np.concatenate(drawn)
+    later = np.flatnonzero(ds.source >= cfg.later_from)
+    if len(later) == 0:
+        raise DataError("--later-fraction: the later --data folders have no training examples")
+    first = np.flatnonzero(ds.source < cfg.later_from)
+    n_later = round(cfg.later_fraction * cfg.batch)
+    return np.concatenate([first[rng.integers(len(first), size=cfg.batch - n_later)],
+                           later[rng.integers(len(later), size=n_later)]])  # fmt: skip
 
 
 def init_weights(cfg: TrainConfig, mcfg: ModelConfig, ds: PushDataset) -> dict[str, Any]:
@@ -388,6 +361,8 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
         defaults = {f.name: f.default for f in fields(TrainConfig)}
         for key in _LATER_SETTINGS:
             run_cfg.setdefault(key, defaults[key])
+        if run_cfg.get("deflected_fraction") == 0.0:  # a retired option the run did not use
+            del run_cfg["deflected_fraction"]
         if run_cfg != asdict(cfg):
             diffs = differences(run_cfg, asdict(cfg), old_has="the run has")
             raise InputError(
@@ -444,9 +419,12 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
                 "world_size": ranks.world,
             }
         folders = [cfg.data] if isinstance(cfg.data, str | Path) else cfg.data
+        # no wall clock in a checkpoint: the same training gives the same bytes (metrics.jsonl
+        # keeps the time)
+        timeless = {k: v for k, v in figures.items() if k != "elapsed_s"}
         extra = {
             "iteration": it, "data": [portable_path(d) for d in folders], "loss": cfg.loss,
-            **figures,
+            **timeless,
         }  # fmt: skip
         save_checkpoint(
             path, model, scenario=ds.scenario, data_hash=data_hash, extra=extra, train_state=state

@@ -384,8 +384,6 @@ def generate(
     scenario = load_scenario(cfg.scenario)
     out_dir = Path(out_dir)
     manifest = open_folder(out_dir, identity(cfg, scenario))
-    for tmp in out_dir.glob(".shard_*.tmp-*"):  # left by an interrupted run; never read
-        tmp.unlink()
     for name, entry in list(manifest["shards"].items()):  # recorded, but lost or damaged since
         path = out_dir / name
         if not path.is_file() or sha256(path) != entry["sha256"]:

@@ -4,7 +4,8 @@ Every command that writes a folder (data, train, trials, improve, study, eval) h
 exclusive lock on it while it runs (:func:`writes_folder`), so a second command on the same
 folder is refused at once, naming the process that holds it, instead of both writing it. The
 lock is ``flock(2)`` on a file in the folder: the kernel releases it when its holder dies, so a
-lock left by a killed process never blocks the next run.
+lock left by a killed process never blocks the next run, and the temporary files a killed writer
+left unfinished are removed when the folder is next taken.
 """
 
 from __future__ import annotations
@@ -23,6 +24,10 @@ from scenarios import InputError
 
 LOCK_NAME = ".se3push.lock"
 """the lock file in a folder being written (its content: the holder's pid and command)"""
+
+TEMPORARY = ".*.tmp-*"
+"""the name pattern of a file being written atomically (``sim.shards.atomic_write_bytes``): one
+found when a folder is taken was left by a killed writer, and is removed"""
 
 DISK_ERRORS = {
     errno.ENOSPC: "no space left on the device",
@@ -108,6 +113,8 @@ def exclusive(folder: str | Path) -> Iterator[Path]:
             ) from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n{_command_line()}\n".encode(), 0)
+        for tmp in folder.glob(TEMPORARY):  # a killed writer's unfinished file: never read
+            tmp.unlink(missing_ok=True)
         _held[key] = 1
         try:
             yield folder

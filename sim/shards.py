@@ -39,7 +39,7 @@ def sha256(path: Path) -> str:
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` via a temporary file in the same folder, fsync, rename."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")  # sim.folders.TEMPORARY
     try:
         with open(tmp, "wb") as f:
             f.write(data)

@@ -1,7 +1,8 @@
 """Fault injection: the commands that write folders are SIGKILLed at random (seeded) moments,
-run again until they finish, and must end with what an uninterrupted run writes (bytes for data,
-weights for models, records but their wall-clock fields for trials and improve), leave no
-process of theirs alive, and refuse a second writer of their folder.
+run again until they finish, and must end with what an uninterrupted run writes (bytes for data;
+every tensor and field of a checkpoint, which holds no wall clock; records but their wall-clock
+fields for trials, training metrics and improve; a record naming the run's own folder reads the
+same), leave no process of theirs alive, and refuse a second writer of their folder.
 
 The fast variant (3 kills) is in the default suite; the slow one (24 kills, 6 a command) gives
 the README's reliability figures: ``python -m pytest -m slow tests/se3push/test_faults.py -s``.
@@ -100,12 +101,20 @@ def _kill_session(sid: int) -> None:
         pass
 
 
-def _strip(obj):
-    """``obj`` without its wall-clock figures."""
+def _strip(obj, out: Path):
+    """``obj`` without its wall-clock figures, and with the run's own folder (which a record
+    may name, and which differs between the runs compared) as ``OUT``."""
     if isinstance(obj, dict):
-        return {k: _strip(v) for k, v in obj.items() if not any(w in k for w in WALL_CLOCK)}
+        timed = {k for k in obj if isinstance(k, str) and any(w in k for w in WALL_CLOCK)}
+        return {k: _strip(v, out) for k, v in obj.items() if k not in timed}
     if isinstance(obj, list):
-        return [_strip(v) for v in obj]
+        return [_strip(v, out) for v in obj]
+    if isinstance(obj, str):
+        return obj.replace(str(out), "OUT")
+    if isinstance(obj, torch.Tensor):
+        return (obj.dtype, tuple(obj.shape), obj.numpy().tobytes())
+    if isinstance(obj, tuple):
+        return tuple(_strip(v, out) for v in obj)
     return obj
 
 
@@ -114,15 +123,14 @@ def _outputs(name: str, out: Path) -> dict[str, object]:
     found: dict[str, object] = {}
     for path in sorted(p for p in out.rglob("*") if p.is_file()):
         rel = str(path.relative_to(out))
-        if path.name == LOCK_NAME or path.suffix == ".png":
-            continue  # the lock holds a pid; pictures are drawn from the records compared
-        if path.suffix == ".pt":
-            blob = torch.load(path, map_location="cpu", weights_only=False)
-            found[rel] = {k: v.numpy().tobytes() for k, v in blob["state_dict"].items()}
+        if path.name == LOCK_NAME or path.suffix in (".png", ".md"):
+            continue  # the lock holds a pid; pictures and tables are drawn from the records
+        if path.suffix == ".pt":  # every byte of it but the run folder's name in its config
+            found[rel] = _strip(torch.load(path, map_location="cpu", weights_only=False), out)
         elif path.suffix == ".jsonl":
-            found[rel] = [_strip(json.loads(x)) for x in path.read_text().splitlines()]
+            found[rel] = [_strip(json.loads(x), out) for x in path.read_text().splitlines()]
         elif path.suffix == ".json":
-            found[rel] = _strip(json.loads(path.read_text()))
+            found[rel] = _strip(json.loads(path.read_text()), out)
         else:
             found[rel] = path.read_bytes()
     assert found, f"{name} wrote nothing to {out}"
