@@ -22,7 +22,6 @@ from sim.camera import DepthCamera
 from sim.controls import layout_named
 from sim.dataset import with_shape_details
 from sim.datastore import load_episodes, read_manifest, scenario_of
-from sim.planar import angle_between_deg
 from sim.shards import DataError
 
 VISIBLE_DEPTH_TOL_M = 0.01
@@ -79,11 +78,6 @@ def paper_noise(name: str) -> NoiseConfig | None:
 
 IMAGE_KEYS = ("points", "valid", "target", "target_valid", "true_flow_m", "part")
 """the keys of a ``PushDataset`` batch that are images (the rest are per example)"""
-DEFLECTED_MIN_DEG = 20.0
-"""an example is deflected (:meth:`PushDataset.deflected`) where an object's step turns more
-than this away from the pusher's motion"""
-DEFLECTED_MIN_STEP_M = 0.002
-"""steps of the pusher or an object shorter than this have no direction to measure"""
 
 
 def subsample_batch(b: dict[str, Any], stride: int) -> dict[str, Any]:
@@ -201,7 +195,6 @@ class PushDataset(Dataset):
             raise DataError(f"split {split!r} of {root} has no examples of horizon {horizon}")
         self.source = source[self.items[:, 0]]
         """per item, which of the dataset folders it comes from (0: the first)"""
-        self._deflected: np.ndarray | None = None  # deflected(), worked out when first asked
         self.device = check_device(device)
         # what batches are assembled from, on the device (on the CPU, views of the arrays);
         # the camera-frame part poses of every frame at once: the same float64 product a
@@ -210,23 +203,6 @@ class PushDataset(Dataset):
         self._T_cam_part = torch.from_numpy(T_cam_part).float().to(self.device)
         self._part = torch.from_numpy(self.a["part"]).to(self.device)  # (E,F,H,W) int8
         self._points_part = torch.from_numpy(self.a["points_part"]).to(self.device)
-
-    def deflected(self) -> np.ndarray:
-        """(N,) bool: the examples whose first step moves some object more than
-        ``DEFLECTED_MIN_STEP_M`` in a direction more than ``DEFLECTED_MIN_DEG`` away from the
-        pusher's motion over the step (a push off the object's centre, or a glancing one):
-        the examples where a model's predicted direction is hardest to get right."""
-        if self._deflected is None:
-            e, t = self.items[:, 0], self.items[:, 1]
-            poses, pusher = self.a["object_poses"], self.a["pusher_xy"]
-            step = poses[e, t + 1, :, :2] - poses[e, t, :, :2]  # (N,O,2)
-            push = (pusher[e, t + 1] - pusher[e, t])[:, None]  # (N,1,2)
-            present = np.arange(poses.shape[2]) < self.a["n_objects"][e, None]
-            moved = (np.linalg.norm(step, axis=-1) > DEFLECTED_MIN_STEP_M) & present
-            pushed = np.linalg.norm(push, axis=-1) > DEFLECTED_MIN_STEP_M
-            turned = angle_between_deg(push, step) > DEFLECTED_MIN_DEG
-            self._deflected = (moved & pushed & turned).any(1)
-        return self._deflected
 
     def __len__(self) -> int:
         return len(self.items)

@@ -258,52 +258,6 @@ def test_later_fraction_draws_that_share_of_each_batch_from_the_later_folders(ti
         _cfg(tiny_data, tmp_path, data=both, later_fraction=1.0)
 
 
-def test_deflected_examples_are_steps_that_turn_an_object_away_from_the_push(tiny_data):
-    """With the pusher moving 1 cm along x: an object carried along x is not deflected, one
-    sent off at 45 degrees is, one nudged a millimetre sideways is not (too short to have a
-    direction), and neither is the motion of an object slot the episode does not hold; with
-    the pusher standing still, an object's motion has no push to turn from."""
-    ds = PushDataset(tiny_data, split="train")
-    e, t = ds.items[:4, 0], ds.items[:4, 1]
-    assert (e == e[0]).all() and (t == np.arange(4)).all()  # four steps of one episode
-    poses, pusher = ds.a["object_poses"], ds.a["pusher_xy"]
-    poses[e[0]], pusher[e[0]] = 0.0, 0.0
-    pusher[e[0], :, 0] = 0.01 * np.arange(pusher.shape[1])
-    steps = [(0.01, 0.0), (0.007, 0.007), (0.0, 0.001), (0.0, 0.0)]
-    for i, step in enumerate(steps):
-        poses[e[0], i + 1 :, 0, :2] += step
-    absent = ds.a["n_objects"][e[0]]  # the first slot the episode does not hold
-    assert absent < poses.shape[2]
-    poses[e[0], 4:, absent, :2] += (0.0, 0.02)  # "moves" sideways at step 3
-    assert ds.deflected()[:4].tolist() == [False, True, False, False]
-    pusher[e[0], 2:] = pusher[e[0], 2]  # still from step 2 on, as the object goes off at 45
-    poses[e[0], 3:, 0, :2] += (0.007, 0.007)
-    ds._deflected = None  # worked out again from the changed arrays
-    assert ds.deflected()[:4].tolist() == [False, True, False, False]
-
-
-def test_deflected_fraction_draws_that_share_of_each_batch_from_the_deflected(tiny_data, tmp_path):
-    from se3net.train import draw_batch
-
-    ds = PushDataset([tiny_data, tiny_data], split="train")
-    deflected = ds.deflected()
-    assert 0 < deflected.sum() < len(ds) / 2
-    rng = np.random.default_rng(0)
-    both = (str(tiny_data), str(tiny_data))
-    cfg = _cfg(tiny_data, tmp_path, data=both, batch=8, deflected_fraction=0.5)
-    batches = [draw_batch(ds, cfg, rng) for _ in range(50)]
-    assert all(len(b) == 8 and deflected[b[4:]].all() for b in batches)  # 4 of every 8
-    assert deflected[np.concatenate([b[:4] for b in batches])].mean() < 0.5  # the rest: any
-    mixed = _cfg(tiny_data, tmp_path, data=both, batch=8, deflected_fraction=0.25,
-                 later_fraction=0.5)  # fmt: skip
-    b = draw_batch(ds, mixed, rng)
-    assert deflected[b[2:4]].all() and (ds.source[b[4:]] == 1).all() and len(b) == 8
-    with pytest.raises(InputError, match="together they must be below 1"):
-        _cfg(tiny_data, tmp_path, data=both, deflected_fraction=0.5, later_fraction=0.5)
-    with pytest.raises(InputError, match=r"--deflected-fraction must be in \[0, 1\)"):
-        _cfg(tiny_data, tmp_path, deflected_fraction=-0.1)
-
-
 def test_later_from_keeps_several_exploration_folders_out_of_the_later_share(tiny_data, tmp_path):
     """Two exploration folders, then the planner-visited one: the later share is drawn from the
     third folder alone, the rest from the first two (both of them)."""
