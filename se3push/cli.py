@@ -1,24 +1,28 @@
-"""Command line: ``se3push <command>`` and ``plan-push``.
+"""Command line: ``se3push <command>`` (``plan-push`` is ``se3push.plan_push``).
 
-Each command parses its arguments, builds its config and calls one library function. Input
-that was checked and refused (``scenarios.InputError``: a bad scenario, argument, file or
-folder) is printed as one line and gives exit code 2; any other exception is a bug and shows
-its traceback (exit code 1).
+Each command parses its arguments, builds its config and calls one library function; the
+exit codes are ``se3push.options.run_command``'s.
 """
 
 from __future__ import annotations
 
 import argparse
-import gc
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 from scenarios import InputError
-
-USER_ERRORS = (InputError, FileNotFoundError, FileExistsError, PermissionError)
-"""refused input (ScenarioError, ActionError, DataError, CheckpointError are InputErrors) and
-the OS's word on the user's paths"""
+from se3push.options import (
+    backend,
+    backend_options,
+    closed_loop_options,
+    feedback_option,
+    noise_option,
+    plan_settings,
+    planning_options,
+    run_command,
+    split_option,
+)
 
 
 def _cmd_scenarios(args: argparse.Namespace) -> int:
@@ -60,7 +64,7 @@ def _cmd_data(args: argparse.Namespace) -> int:
         steps_per_episode=args.steps_per_episode,
         seed=args.seed,
     )
-    manifest = generate(cfg, args.out, workers=args.workers, **_backend(args))
+    manifest = generate(cfg, args.out, workers=args.workers, **backend(args))
     st = summarize(manifest)
     motion = (
         f"object moves in {st['object_motion_fraction']:.1%}"
@@ -84,7 +88,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         lr=args.lr, seed=args.seed, device=args.device, k=args.k,
         eval_every=args.eval_every, keep_every=args.keep_every,
         rollout_steps=args.rollout_steps, init=args.init, later_fraction=args.later_fraction,
-        later_from=args.later_from, deflected_fraction=args.deflected_fraction,
+        later_from=args.later_from,
         stride=args.stride, loss=args.loss, noise=args.noise,
         controls=args.controls, valid_channel=args.valid_channel, full_res_head=args.full_res_head,
         feedback=args.feedback,
@@ -124,95 +128,12 @@ def _cmd_trials(args: argparse.Namespace) -> int:
     from evaluation.trials import TrialsConfig, run_trials
 
     cfg = TrialsConfig(scenario=args.scenario, n=args.n, model=args.model, seed=args.seed,
-                       max_steps=args.max_steps, plan=_plan_settings(args))  # fmt: skip
-    s = run_trials(cfg, args.out, workers=args.workers, threads=args.threads, **_backend(args))
+                       max_steps=args.max_steps, plan=plan_settings(args))  # fmt: skip
+    s = run_trials(cfg, args.out, workers=args.workers, threads=args.threads, **backend(args))
     print(format_summary(s, f"{args.model} / {cfg.plan.planner} on {args.scenario}, "
                             f"{s['trials']} trials (seed {args.seed})"))  # fmt: skip
     print(f"wrote {args.out}/trials.jsonl, summary.json, paths.png")
     return 0
-
-
-def _closed_loop_options(
-    s: argparse.ArgumentParser,
-    *,
-    seed_help: str,
-    scenario_help: str = "scenario name or TOML path",
-    several: bool = False,
-) -> None:
-    """The options every command that runs closed-loop trials shares (``several``: the
-    command takes one or more scenarios)."""
-    s.add_argument("--scenario", default=["single_box"] if several else "single_box",
-                   nargs="+" if several else None, help=scenario_help)  # fmt: skip
-    s.add_argument("--seed", type=int, default=0, help=seed_help)
-    s.add_argument("--max-steps", type=int, default=60, help="control steps per trial")
-    s.add_argument("--workers", type=int, default=1, help="processes for the trials")
-
-
-def _backend_options(s: argparse.ArgumentParser) -> None:
-    """Where the independent jobs of a command run (``sim.jobs``)."""
-    s.add_argument(
-        "--backend", choices=["local", "ray"], default="local",
-        help="local: a process pool on this machine; ray: Ray workers (pip install -e "
-        "\".[scale]\"); the same records and bytes either way",
-    )  # fmt: skip
-    s.add_argument(
-        "--address", default=None,
-        help="ray: the address of an existing Ray cluster (default: start one here with "
-        "--workers CPUs); its nodes must see the same files",
-    )  # fmt: skip
-
-
-def _backend(args: argparse.Namespace) -> dict:
-    """``backend`` and ``address`` from :func:`_backend_options`' flags."""
-    return {"backend": args.backend, "address": args.address}
-
-
-def _noise_option(s: argparse.ArgumentParser, what: str) -> None:
-    s.add_argument(
-        "--noise", default="none",
-        help=f"{what}: none, or a noise of the paper's Table 2 by name (depth-scaled, depth, "
-        "assoc-9, ...; a wrong name lists them)",
-    )  # fmt: skip
-
-
-def _feedback_option(s: argparse.ArgumentParser, what: str, default: str = "grid") -> None:
-    """``--feedback``: how ``what`` is fed back (``se3net.rollout.FEEDBACK``)."""
-    s.add_argument(
-        "--feedback", default=default, metavar="grid|rendered",
-        help=f"how {what} are fed back as the next input: on the observed pixel grid (the "
-        f"paper's way) or rendered again by the camera (default {default})",
-    )  # fmt: skip
-
-
-def _split_option(s: argparse.ArgumentParser) -> None:
-    """``--split``: the episodes of a dataset that a measurement reads."""
-    s.add_argument(
-        "--split", choices=["test", "all"], default="test",
-        help="the dataset's episodes to use: its test split, or all (a held-out dataset)",
-    )  # fmt: skip
-
-
-def _planning_options(s: argparse.ArgumentParser) -> None:
-    """The planning settings of a command that pushes (``planner.settings.PlanSettings``): a
-    preset, a TOML file, single settings, and the optimiser by name."""
-    from planner.presets import PRESETS
-
-    s.add_argument("--planner", default=None, help="optimiser: cem, mppi, grad or sqp")
-    s.add_argument("--preset", default=None, choices=list(PRESETS),
-                   help="an earlier planner by name (default: today's)")  # fmt: skip
-    s.add_argument("--config", default=None, metavar="FILE.toml",
-                   help="planning settings from a TOML file (`se3push config`)")  # fmt: skip
-    s.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="assign",
-                   help="one planning setting, e.g. --set optimiser.horizon=4 --set "
-                   "cost.w_keepout=0 (after --preset and --config; repeatable)")  # fmt: skip
-
-
-def _plan_settings(args: argparse.Namespace):
-    """The ``PlanSettings`` of :func:`_planning_options`' flags."""
-    from planner.settings import resolve_settings
-
-    return resolve_settings(preset=args.preset, config=args.config, assignments=args.assign,
-                            flags={"planner": args.planner})  # fmt: skip
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
@@ -220,7 +141,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
 
     cfg = StudyConfig(scenario=args.scenario, data=args.data, models=tuple(args.models),
                       trials=args.trials, seed=args.seed, max_steps=args.max_steps,
-                      max_examples=args.max_examples, plan=_plan_settings(args))  # fmt: skip
+                      max_examples=args.max_examples, plan=plan_settings(args))  # fmt: skip
     result = run_study(cfg, args.out, workers=args.workers)
     print((Path(args.out) / "study.md").read_text())
     print(f"wrote {args.out}/study.md, study.json, study.png and trials/")
@@ -228,7 +149,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
 
 
 def _cmd_deflection(args: argparse.Namespace) -> int:
-    from evaluation.study import BACKEND_MODELS, parse_models, push_deflection, study_dynamics
+    from evaluation.deflection import push_deflection
+    from evaluation.study import BACKEND_MODELS, parse_models, study_dynamics
     from planner.dynamics import CONTACT_MARGIN_M, PLAN_FEEDBACK
     from se3net.checkpoint import refuse_trained_on
     from sim.datastore import read_manifest, scenario_of
@@ -281,9 +203,9 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         trials_per_round=args.trials_per_round, heldout=args.heldout, seed=args.seed,
         action_noise=args.action_noise, finetune_iters=args.finetune_iters,
         rollout_steps=args.rollout_steps, lr=args.lr, max_steps=args.max_steps,
-        visited_fraction=args.visited_fraction, plan=_plan_settings(args),
+        visited_fraction=args.visited_fraction, plan=plan_settings(args),
     )  # fmt: skip
-    run_improve(cfg, args.out, workers=args.workers, **_backend(args))
+    run_improve(cfg, args.out, workers=args.workers, **backend(args))
     print((Path(args.out) / "improve.md").read_text())
     print(f"wrote {args.out}/improve.md, improve.json, improve.png and round_*/")
     return 0
@@ -292,7 +214,7 @@ def _cmd_improve(args: argparse.Namespace) -> int:
 def _cmd_config(args: argparse.Namespace) -> int:
     from planner.settings import settings_toml
 
-    print(settings_toml(_plan_settings(args)), end="")
+    print(settings_toml(plan_settings(args)), end="")
     return 0
 
 
@@ -356,10 +278,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--steps-per-episode", type=int, default=20, help="actions per episode")
     s.add_argument("--inspect", metavar="DIR", help="print a dataset's manifest and statistics")
-    _backend_options(s)
+    backend_options(s)
     s.set_defaults(run=_cmd_data)
-
-    from se3net.data import DEFLECTED_MIN_DEG
 
     s = sub.add_parser("train", help="train an SE3-Net or a baseline on a dataset")
     s.add_argument(
@@ -386,7 +306,7 @@ def _parser() -> argparse.ArgumentParser:
         default=1,
         help="train on N-step rollouts with predictions fed back, as the planner rolls the model",
     )
-    _feedback_option(s, "the predictions of a multi-step training rollout")
+    feedback_option(s, "the predictions of a multi-step training rollout")
     s.add_argument("--init", default=None, help="start from this checkpoint's weights (fine-tune)")
     s.add_argument(
         "--later-fraction",
@@ -394,12 +314,6 @@ def _parser() -> argparse.ArgumentParser:
         default=0.0,
         help="share of each batch drawn from the later --data folders (0: uniform)",
     )
-    s.add_argument(
-        "--deflected-fraction", type=float, default=0.0, metavar="F",
-        help="share of each batch drawn from the examples where an object's step turns more "
-        f"than {DEFLECTED_MIN_DEG:g} degrees away from the pusher's motion (0: none drawn "
-        "apart)",
-    )  # fmt: skip
     s.add_argument(
         "--later-from",
         type=int,
@@ -431,41 +345,41 @@ def _parser() -> argparse.ArgumentParser:
         "--full-res-head", action="store_true",
         help="end the decoder with a stage at full resolution that sees the input cloud",
     )  # fmt: skip
-    _noise_option(s, "train and validate under the paper's robustness noise (Table 2)")
+    noise_option(s, "train and validate under the paper's robustness noise (Table 2)")
     s.add_argument("--resume", action="store_true", help="continue the run in --out exactly")
     s.set_defaults(run=_cmd_train)
 
     s = sub.add_parser("eval", help="the paper's Table 1 on a dataset's test split")
     s.add_argument("--data", required=True, help="dataset folder")
-    _split_option(s)
+    split_option(s)
     s.add_argument(
         "--checkpoints", nargs="+", required=True, help="checkpoint files ('default': shipped)"
     )
     s.add_argument("--out", required=True, help="folder for table.md, eval.json and PNGs")
     s.add_argument("--max-examples", type=int, default=2000, help="test examples to use")
-    _noise_option(s, "test under the paper's robustness noise (Table 2)")
+    noise_option(s, "test under the paper's robustness noise (Table 2)")
     s.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or mps")
-    _feedback_option(s, "the predictions of the fed-back rows")
+    feedback_option(s, "the predictions of the fed-back rows")
     s.set_defaults(run=_cmd_eval)
 
     s = sub.add_parser("trials", help="closed-loop trials with success rates")
-    _closed_loop_options(s, seed_help="seed of the trial set")
+    closed_loop_options(s, seed_help="seed of the trial set")
     s.add_argument("--n", type=int, default=50, help="number of trials")
     s.add_argument(
         "--model",
         default="default",
         help="default, a checkpoint path, checkpoints joined by + (ensemble), oracle or no-motion",
     )
-    _planning_options(s)
+    planning_options(s)
     s.add_argument("--threads", type=int, default=None,
                    help="torch threads per worker (default 1: the same records for any "
                    "--workers)")  # fmt: skip
     s.add_argument("--out", required=True, help="folder for trials.jsonl, summary.json, paths.png")
-    _backend_options(s)
+    backend_options(s)
     s.set_defaults(run=_cmd_trials)
 
     s = sub.add_parser("study", help="how model accuracy relates to closed-loop success")
-    _closed_loop_options(s, seed_help="seed of the trial set")
+    closed_loop_options(s, seed_help="seed of the trial set")
     s.add_argument("--data", required=True, help="dataset whose test split gives the accuracy")
     s.add_argument(
         "--models",
@@ -475,7 +389,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--trials", type=int, default=30, help="closed-loop trials per model")
     s.add_argument("--max-examples", type=int, default=1000, help="held-out examples per model")
-    _planning_options(s)
+    planning_options(s)
     s.add_argument("--out", required=True, help="folder for study.md/.json/.png and trials/")
     s.set_defaults(run=_cmd_study)
 
@@ -483,7 +397,7 @@ def _parser() -> argparse.ArgumentParser:
         "deflection", help="how far off-centre pushes turn the object, and how far a model says"
     )
     s.add_argument("--data", required=True, help="dataset whose pushes are measured")
-    _split_option(s)
+    split_option(s)
     s.add_argument("--models", nargs="+", required=True,
                    help="default or checkpoint paths (LABEL=PATH names one)")  # fmt: skip
     s.add_argument("--max-windows", type=int, default=2000,
@@ -492,7 +406,7 @@ def _parser() -> argparse.ArgumentParser:
     s.set_defaults(run=_cmd_deflection)
 
     s = sub.add_parser("improve", help="rounds of planner-visited data and fine-tuning")
-    _closed_loop_options(
+    closed_loop_options(
         s, seed_help="seed of the held-out trial sets", several=True,
         scenario_help="scenario names or TOML paths: pushes are collected in each and every "
         "round is measured on each",
@@ -524,15 +438,15 @@ def _parser() -> argparse.ArgumentParser:
         default=0.5,
         help="share of each fine-tuning batch drawn from the planner-visited data",
     )
-    _planning_options(s)
+    planning_options(s)
     s.add_argument("--out", required=True, help="folder of the rounds (resumable)")
-    _backend_options(s)
+    backend_options(s)
     s.set_defaults(run=_cmd_improve)
 
     s = sub.add_parser(
         "config", help="print the planning settings as TOML (the defaults, or a preset's)"
     )
-    _planning_options(s)
+    planning_options(s)
     s.set_defaults(run=_cmd_config)
 
     s = sub.add_parser("bench", help="time the hot paths (medians over repeats)")
@@ -574,123 +488,10 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _run(run: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
-    from sim.folders import unwritable
-
-    try:
-        return run(args)
-    except USER_ERRORS as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    except OSError as err:  # a full, read-only or forbidden folder is the user's to fix
-        if (refused := unwritable(err)) is None:
-            raise
-        print(f"error: {refused}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        pass
-    # after the except block, so that the interrupted frames are gone and their progress bars
-    # have drawn their last line: the message is the last line
-    gc.collect()
-    print(
-        "interrupted: run the same command again to continue where it stopped "
-        "(train: with --resume)",
-        file=sys.stderr,
-    )
-    return 130
-
-
-def _plan_push_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="plan-push",
-        description="push an object to a goal pose with MPC over a learned SE3-Net",
-    )
-    p.add_argument("--goal", nargs=3, type=float, required=True, metavar=("X", "Y", "YAW_DEG"),
-                   help="goal pose in the world frame: metres, metres, degrees")  # fmt: skip
-    p.add_argument("--scenario", default="single_box", help="scenario name or TOML path")
-    p.add_argument("--object", type=int, default=0, help="index of the object to push")
-    p.add_argument(
-        "--model",
-        default="default",
-        help="default (shipped), a checkpoint path, checkpoints joined by + (an ensemble whose "
-        "disagreement the cost penalises), oracle or no-motion",
-    )
-    _planning_options(p)
-    p.add_argument("--seed", type=int, default=0, help="seed of the world and the planner")
-    p.add_argument("--max-steps", type=int, default=60, help="control steps before giving up")
-    p.add_argument("--device", default="cpu", help="device of a learned model")
-    p.add_argument("--threads", type=int, default=None,
-                   help="torch threads (default: torch's own, one per core)")  # fmt: skip
-    p.add_argument("--json", action="store_true", help="print the result line as JSON")
-    p.add_argument(
-        "--viz", action="store_true", help="show the push live in meshcat (prints the URL)"
-    )
-    p.add_argument(
-        "--record", metavar="HTML", help="write the push as a self-contained meshcat HTML animation"
-    )
-    return p
-
-
-def _cmd_plan_push(args: argparse.Namespace) -> int:
-    import json
-    import math
-
-    from planner.loop import PushConfig, run_push
-
-    x, y, yaw_deg = args.goal
-    cfg = PushConfig(
-        goal=(x, y, math.radians(yaw_deg)), scenario=args.scenario, object_index=args.object,
-        model=args.model, seed=args.seed, max_steps=args.max_steps, device=args.device,
-        plan=_plan_settings(args),
-    )  # fmt: skip
-
-    def show(rec) -> None:
-        if not args.json:
-            print(
-                f"step {rec.step:3d}  pos err {rec.pos_err_m * 100:5.1f} cm  "
-                f"yaw err {rec.yaw_err_deg:5.1f} deg  replan {rec.replan_ms:6.0f} ms",
-                flush=True,
-            )
-
-    viz = None
-    if args.viz or args.record:
-        from integrations.viz import MeshcatVisualiser
-
-        viz = MeshcatVisualiser(live=args.viz, record=args.record)
-    if args.threads is None:
-        result = run_push(cfg, on_step=show, viz=viz)
-    else:
-        from evaluation.trials import worker_threads
-        from sim.jobs import torch_threads
-
-        with torch_threads(worker_threads(args.threads)):
-            result = run_push(cfg, on_step=show, viz=viz)
-    if args.record:
-        print(f"wrote {args.record} ({viz.frames} frames)")
-    if args.json:
-        print(json.dumps(result.summary()))
-    else:
-        verdict = "SUCCESS" if result.success_tight else "FAILURE"
-        print(
-            f"{verdict}: final error {result.final_pos_err_m * 100:.1f} cm, "
-            f"{result.final_yaw_err_deg:.1f} deg ({result.reason}); {result.steps} steps, "
-            f"{result.sim_time_s:.2f} s simulated; median replan {result.replan_ms_median:.0f} ms; "
-            f"loose success {result.success_loose}"
-        )
-        if result.others_moved_m is not None:
-            print(f"the other objects moved at most {result.others_moved_m * 100:.1f} cm")
-    return 0 if result.success_tight else 1
-
-
-def plan_push_main(argv: Sequence[str] | None = None) -> int:
-    """``plan-push`` entry point: 0 if the object reached the goal, 1 if not, 2 on bad input."""
-    return _run(_cmd_plan_push, _plan_push_parser().parse_args(argv))
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """``se3push`` entry point; returns the exit code."""
     args = _parser().parse_args(argv)
-    return _run(args.run, args)
+    return run_command(args.run, args)
 
 
 if __name__ == "__main__":

@@ -15,12 +15,15 @@ command (``qd = 0``) and is counted in ``failures``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 import osqp
 import scipy.sparse as sp
+
+from scenarios import InputError, Scenario
 
 
 @dataclass(frozen=True)
@@ -149,3 +152,30 @@ class PusherIK:
         lead = self.w.max_servo_lead_rad
         q_next = np.clip(q_ref + qd * self.dt, q_now - lead, q_now + lead)
         return np.clip(q_next, self.q_min, self.q_max)
+
+
+def planar_arm_ik(scenario: Scenario, xy_m: tuple[float, float] | np.ndarray) -> np.ndarray:
+    """Joint angles (4,) that put the pusher tip at ``xy_m`` at its working height, vertical,
+    elbow up.
+
+    Raises:
+        InputError: the point is out of reach (a scenario's ``arm.start_xy_m``, or a region
+            the arm cannot cover).
+    """
+    a = scenario.arm
+    l1, l2 = a.link_lengths_m
+    dx, dy = xy_m[0] - a.base_xy_m[0], xy_m[1] - a.base_xy_m[1]
+    r = math.hypot(dx, dy)
+    down = a.shoulder_height_m - (a.pusher_clearance_m + a.pusher_length_m)  # wrist below shoulder
+    c2 = (r * r + down * down - l1 * l1 - l2 * l2) / (2 * l1 * l2)
+    if not -1.0 <= c2 <= 1.0:
+        lo = math.sqrt(max((l1 - l2) ** 2 - down**2, 0.0))
+        hi = math.sqrt(max((l1 + l2) ** 2 - down**2, 0.0))
+        raise InputError(
+            f"scenario {scenario.name}: pusher position {tuple(map(float, xy_m))} is out of the "
+            f"arm's reach ({lo:.3f}-{hi:.3f} m from arm.base_xy_m {tuple(a.base_xy_m)}, it is "
+            f"{r:.3f} m); move arm.start_xy_m or objects.region_m within it"
+        )
+    p2 = math.acos(c2)
+    p1 = math.atan2(down, r) - math.atan2(l2 * math.sin(p2), l1 + l2 * math.cos(p2))
+    return np.array([math.atan2(dy, dx), p1, p2, -(p1 + p2)])

@@ -23,7 +23,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from sim.world import PushWorld, planar_arm_ik
+from sim.controller import planar_arm_ik
+from sim.world import PushWorld
 
 JOINT_MODES = ("joints", "rest")
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from scenarios import InputError, Scenario
 from sim.camera import DepthCamera, associated_targets, invert, transform_by_part
-from sim.controller import PusherIK
+from sim.controller import PusherIK, planar_arm_ik
 from sim.controls import control_layout
 from sim.mjcf import (
     ARM_JOINTS,
@@ -108,33 +108,6 @@ class Observation:
 def yaw_of(R: np.ndarray) -> float:
     """Heading of a rotation matrix's x axis in the world xy plane."""
     return math.atan2(R[1, 0], R[0, 0])
-
-
-def planar_arm_ik(scenario: Scenario, xy_m: tuple[float, float] | np.ndarray) -> np.ndarray:
-    """Joint angles (4,) that put the pusher tip at ``xy_m`` at its working height, vertical,
-    elbow up.
-
-    Raises:
-        InputError: the point is out of reach (a scenario's ``arm.start_xy_m``, or a region
-            the arm cannot cover).
-    """
-    a = scenario.arm
-    l1, l2 = a.link_lengths_m
-    dx, dy = xy_m[0] - a.base_xy_m[0], xy_m[1] - a.base_xy_m[1]
-    r = math.hypot(dx, dy)
-    down = a.shoulder_height_m - (a.pusher_clearance_m + a.pusher_length_m)  # wrist below shoulder
-    c2 = (r * r + down * down - l1 * l1 - l2 * l2) / (2 * l1 * l2)
-    if not -1.0 <= c2 <= 1.0:
-        lo = math.sqrt(max((l1 - l2) ** 2 - down**2, 0.0))
-        hi = math.sqrt(max((l1 + l2) ** 2 - down**2, 0.0))
-        raise InputError(
-            f"scenario {scenario.name}: pusher position {tuple(map(float, xy_m))} is out of the "
-            f"arm's reach ({lo:.3f}-{hi:.3f} m from arm.base_xy_m {tuple(a.base_xy_m)}, it is "
-            f"{r:.3f} m); move arm.start_xy_m or objects.region_m within it"
-        )
-    p2 = math.acos(c2)
-    p1 = math.atan2(down, r) - math.atan2(l2 * math.sin(p2), l1 + l2 * math.cos(p2))
-    return np.array([math.atan2(dy, dx), p1, p2, -(p1 + p2)])
 
 
 class PushWorld:

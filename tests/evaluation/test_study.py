@@ -182,7 +182,7 @@ def test_push_deflection_of_a_model_that_moves_the_object_the_pusher_s_way(study
     """A model that moves the object along the pusher's commanded velocity predicts no
     deflection, so its direction error is the true deflection, bin by bin; every window
     counted was a push toward the object's side of the pusher."""
-    from evaluation.study import OFF_CENTRE_BINS_DEG, push_deflection
+    from evaluation.deflection import OFF_CENTRE_BINS_DEG, push_deflection
     from scenarios import load_scenario
 
     dt = load_scenario("tiny").action.dt_control_s
@@ -204,7 +204,8 @@ def test_left_behind_counts_the_points_a_torn_prediction_does_not_carry(study_da
     motion or by a rigid step too short (a short step is not a tear); one that moves only the
     object's points on one side of its centre leaves the other side; the observed cloud itself
     (nothing moved) has no step to tear."""
-    from evaluation.study import _moving_windows, _window_states, left_behind
+    from evaluation.deflection import left_behind
+    from evaluation.study import _moving_windows, _window_states
     from planner.dynamics import to_world
     from se3net.data import PushDataset
 
@@ -268,7 +269,7 @@ def test_push_deflection_leaves_predicted_stillness_out_of_the_angles(study_data
     """A model that predicts no motion has no direction to compare: every window counts as
     predicted still, the angles are None (not the 90 degrees a zero vector would give), and
     the length ratio is about 0."""
-    from evaluation.study import push_deflection
+    from evaluation.deflection import push_deflection
     from planner.dynamics import make_dynamics
     from scenarios import load_scenario
 

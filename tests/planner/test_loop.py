@@ -7,7 +7,7 @@ import pytest
 from planner import CostConfig, PlannerConfig, PlanSettings
 from planner.loop import PushConfig, run_push
 from scenarios import load_scenario
-from se3push.cli import plan_push_main
+from se3push.plan_push import main as plan_push_main
 from sim import PushWorld
 from sim.planar import pose_errors
 

@@ -14,7 +14,8 @@ from planner.settings import (
     settings_toml,
 )
 from scenarios import InputError
-from se3push.cli import main, plan_push_main
+from se3push.cli import main
+from se3push.plan_push import main as plan_push_main
 
 
 @pytest.mark.parametrize("name", list(PRESETS))

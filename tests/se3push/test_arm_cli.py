@@ -3,7 +3,8 @@ refuses it (its actions are joint velocities, not pushes) with one line and exit
 
 import pytest
 
-from se3push.cli import main, plan_push_main
+from se3push.cli import main
+from se3push.plan_push import main as plan_push_main
 
 REFUSAL = "scenario 'arm' has joint-velocity controls, not pusher actions"
 

@@ -10,7 +10,8 @@ import torch
 import scenarios
 from scenarios import InputError, ScenarioError
 from se3net.checkpoint import CheckpointError
-from se3push.cli import main, plan_push_main
+from se3push.cli import main
+from se3push.plan_push import main as plan_push_main
 from sim import ActionError
 from sim.shards import DataError
 
