@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -103,14 +104,14 @@ def _kill_session(sid: int) -> None:
 
 def _strip(obj, out: Path):
     """``obj`` without its wall-clock figures, and with the run's own folder (which a record
-    may name, and which differs between the runs compared) as ``OUT``."""
+    may name, absolute or relative, and which differs between the runs compared) as ``OUT``."""
     if isinstance(obj, dict):
         timed = {k for k in obj if isinstance(k, str) and any(w in k for w in WALL_CLOCK)}
         return {k: _strip(v, out) for k, v in obj.items() if k not in timed}
     if isinstance(obj, list):
         return [_strip(v, out) for v in obj]
-    if isinstance(obj, str):
-        return obj.replace(str(out), "OUT")
+    if isinstance(obj, str):  # the folder as given, or relative to the run's directory
+        return re.sub(rf"(^|/){re.escape(out.name)}(/|$)", r"\1OUT\2", obj.replace(str(out), "OUT"))
     if isinstance(obj, torch.Tensor):
         return (obj.dtype, tuple(obj.shape), obj.numpy().tobytes())
     if isinstance(obj, tuple):
