@@ -18,14 +18,13 @@ from typing import Any
 import numpy as np
 
 from evaluation.diagnostics import pauses
+from evaluation.records import migrate_config
 from evaluation.report import fmt
 from evaluation.trials import GROUPINGS, label_order, same_trial, wilson
-from planner.loop import LOOSE, TIGHT
+from planner.loop import TIGHT, TOLERANCES
 from scenarios import InputError
 from scenarios.config import differences
 
-TOLERANCES = {"tight": TIGHT, "loose": LOOSE}
-"""success tolerances of a trial record: (position m, yaw deg)"""
 SAME_TRIAL_KEYS = ("reset_seed", "start", "goal")
 """what makes two records the same trial"""
 RECORD_KEYS = ("trial", *SAME_TRIAL_KEYS, "success_tight", "success_loose")
@@ -169,7 +168,8 @@ def compare_trials(
 
     Args:
         a, b: folders written by ``se3push trials --out`` with the same scenario and seed.
-        tolerance: "tight" (2 cm, 10°) or "loose" (5 cm, 20°) success.
+        tolerance: "precise" (1 cm, 5°; only folders whose trials ran on to it), "tight"
+            (2 cm, 10°) or "loose" (5 cm, 20°) success.
         n: compare trials 0..n-1 (both folders must hold them); None: every trial both hold.
         by: names of :data:`evaluation.trials.GROUPINGS` (``shape``, ``size``, ``mass``): the
             paired trials are also compared group by group of their pushed object (one group
@@ -178,7 +178,8 @@ def compare_trials(
     Returns:
         :func:`paired_stats` of the outcomes, plus ``a``, ``b`` (folders), ``tolerance``,
         ``tolerance_m_deg``, ``trials`` (the paired indices), ``outcomes_a`` and
-        ``outcomes_b`` (success per paired trial) and per folder the medians over
+        ``outcomes_b`` (success per paired trial), ``by_tolerance`` (the successes, wins,
+        losses and p at every tolerance both folders measured) and per folder the medians over
         those trials of ``steps`` and ``replan_ms_median`` (``median_steps_a``,
         ``median_replan_ms_a``, ... ; None where a record lacks the figure), and the median
         of their pauses between pushes (``median_pause_a``: ``planner.diagnostics.pauses``;
@@ -225,12 +226,26 @@ def compare_trials(
             f"{i}: {'; '.join(differences(ka, kb, old_has='A has', new_has='B has'))}); "
             "compare folders run with the same --scenario, --seed and trial draw"
         )
-    key = f"success_{tolerance}"
-    outcomes_a, outcomes_b = ([bool(recs[i][key]) for i in trials] for recs in (recs_a, recs_b))
+    measured = [
+        name for name in TOLERANCES if all(_measures(c, name) for c in (config_a, config_b))
+    ]
+    if tolerance not in measured:
+        folder = a if not _measures(config_a, tolerance) else b
+        raise InputError(
+            f"{folder} ran its trials to a looser tolerance than {tolerance}, so it does not "
+            f"measure that success; run them with `se3push trials --tolerance {tolerance}`"
+        )
+
+    def outcomes(name: str) -> tuple[list[bool], list[bool]]:
+        key = f"success_{name}"
+        return tuple([bool(recs[i][key]) for i in trials] for recs in (recs_a, recs_b))
+
+    outcomes_a, outcomes_b = outcomes(tolerance)
     out = {"a": str(a), "b": str(b), "tolerance": tolerance}
     out |= {"tolerance_m_deg": list(TOLERANCES[tolerance]), "trials": trials}
     out |= {"outcomes_a": outcomes_a, "outcomes_b": outcomes_b}
     out |= paired_stats(outcomes_a, outcomes_b)
+    out["by_tolerance"] = {name: paired_stats(*outcomes(name)) for name in measured}
     for side, recs in (("a", recs_a), ("b", recs_b)):
         out[f"median_steps_{side}"] = _median([recs[i].get("steps") for i in trials])
         out[f"median_replan_ms_{side}"] = _median([recs[i].get("replan_ms_median") for i in trials])
@@ -238,6 +253,14 @@ def compare_trials(
     if by:
         out["groups"] = _groups(recs_a, trials, outcomes_a, outcomes_b, by, folder=a)
     return out
+
+
+def _measures(config: dict[str, Any], tolerance: str) -> bool:
+    """Whether a folder's trials ran on until within ``tolerance`` (or a tighter one), so that
+    their success at it is measured (folders from before the setting ran to tight)."""
+    pos, yaw = migrate_config(config).get("tolerance", TIGHT)
+    limit = TOLERANCES[tolerance]
+    return pos <= limit[0] and yaw <= limit[1]
 
 
 def _groups(
@@ -361,6 +384,10 @@ def format_pooled(pooled: dict[str, Any]) -> str:
 def format_comparison(c: dict[str, Any]) -> str:
     """Three lines of a :func:`compare_trials` result, for the terminal."""
     lines = [f"A: {c['a']}  B: {c['b']}  ({_scope(c)})", _success_line(c)]
+    for name, t in c.get("by_tolerance", {}).items():
+        if name != c["tolerance"]:
+            metres, degrees = TOLERANCES[name]
+            lines.append(f"  at {name} ({metres * 100:g} cm & {degrees:g}°): {_success_line(t)}")
     lines.append(
         f"median steps A {fmt(c['median_steps_a'], '.0f')}, B {fmt(c['median_steps_b'], '.0f')}; "
         f"median replan A {fmt(c['median_replan_ms_a'], '.0f')} ms, "

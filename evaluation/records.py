@@ -20,6 +20,7 @@ import copy
 from dataclasses import asdict
 from typing import Any
 
+from planner.loop import TIGHT
 from planner.settings import PlanSettings
 
 SCHEMA = 2
@@ -91,6 +92,8 @@ def migrate_config(meta: dict[str, Any]) -> dict[str, Any]:
     edge = plan["cost"].pop("w_edge", RETIRED["w_edge"])
     if edge != RETIRED["w_edge"]:
         retired["w_edge"] = edge
+    if "n" in old and "scenario" in old and "models" not in old:  # a trial set
+        old.setdefault("tolerance", list(TIGHT))  # trials ran to 2 cm, 10 deg before
     return {"schema": SCHEMA, **old, "plan": plan, "retired": retired}
 
 

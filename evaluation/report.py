@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from planner.loop import TOLERANCES
+
 
 def fmt(x: Any, spec: str = ".3f") -> str:
     """A figure for a table, or a dash where it is undefined (None)."""
@@ -44,15 +46,24 @@ def diagnostics_line(s: dict) -> str:
     )
 
 
+def _rate(s: dict[str, Any], tolerance: str) -> str:
+    """A summary's success rate at a tolerance with its interval, or why it has none."""
+    rate = s.get(f"success_{tolerance}")
+    if rate is None:
+        return "not measured (the trials stopped short of it: --tolerance)"
+    lo, hi = s[f"success_{tolerance}_ci95"]
+    return f"{rate:.0%}  [95 % CI {lo:.0%}-{hi:.0%}]"
+
+
 def format_summary(s: dict[str, Any], title: str) -> str:
     """The printed summary of a trial set (``evaluation.trials.summarize``'s dict)."""
-    lo, hi = s["success_tight_ci95"]
-    lo2, hi2 = s["success_loose_ci95"]
     return (
         f"{title}:\n"
-        f"  success (2 cm, 10 deg)  {s['success_tight']:.0%}  [95 % CI {lo:.0%}-{hi:.0%}]\n"
-        f"  success (5 cm, 20 deg)  {s['success_loose']:.0%}  [95 % CI {lo2:.0%}-{hi2:.0%}]\n"
-        f"  median final error      {s['median_final_pos_err_m'] * 100:.1f} cm, "
+        + "".join(
+            f"  success ({metres * 100:g} cm, {degrees:g} deg)".ljust(26) + _rate(s, name) + "\n"
+            for name, (metres, degrees) in TOLERANCES.items()
+        )
+        + f"  median final error      {s['median_final_pos_err_m'] * 100:.1f} cm, "
         f"{s['median_final_yaw_err_deg']:.1f} deg\n"
         f"  median steps            {s['median_steps']:.0f}\n"
         f"  median replan           {s['median_replan_ms_median']:.0f} ms\n"

@@ -24,7 +24,7 @@ import numpy as np
 from evaluation.diagnostics import path_efficiency, pooled, unseen_share
 from evaluation.records import SCHEMA, migrate_config
 from planner.base import ONE_PLANNER_SETTINGS
-from planner.loop import PushConfig, push_scenario, run_push
+from planner.loop import TIGHT, TOLERANCES, PushConfig, check_tolerance, push_scenario, run_push
 from planner.settings import PlanSettings
 from scenarios import InputError, Scenario, check_seed, load_scenario
 from scenarios.config import differences
@@ -52,9 +52,14 @@ class TrialsConfig:
     """control steps per trial"""
     plan: PlanSettings = PlanSettings()
     """the planning settings (each trial's optimiser is seeded with its world's seed)"""
+    tolerance: tuple[float, float] = TIGHT
+    """each trial goes on until the object is within this position (m) and yaw (deg) of its
+    goal (``planner.loop.TOLERANCES``): success at a tighter tolerance is measured only by
+    trials that ran to it"""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
+        object.__setattr__(self, "tolerance", check_tolerance(self.tolerance))
         if self.n < 1 or self.max_steps < 1:
             raise InputError(
                 f"--n and --max-steps must be positive, got {self.n} and {self.max_steps}"
@@ -132,6 +137,7 @@ def run_trial(cfg: TrialsConfig, i: int) -> dict[str, Any]:
         seed=trial["reset_seed"],
         max_steps=cfg.max_steps,
         plan=cfg.plan,
+        tolerance=cfg.tolerance,
     )
     result = run_push(push)
     path = [trial["start"][:2]] + [r.object_pose[:2] for r in result.records]
@@ -152,7 +158,12 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     """Success rates (with 95 % intervals) and medians of a set of trial records."""
     n = len(records)
     out: dict[str, Any] = {"trials": n}
-    for tol in ("tight", "loose"):
+    for tol, (pos, yaw) in TOLERANCES.items():
+        # measured where every trial ran on until within it (older records: to tight)
+        ran_to = [r.get("tolerance", TIGHT) for r in records]
+        if not all(p <= pos and y <= yaw for p, y in ran_to):
+            out[f"success_{tol}"] = out[f"success_{tol}_ci95"] = None
+            continue
         k = sum(r[f"success_{tol}"] for r in records)
         out[f"success_{tol}"] = k / max(n, 1)
         out[f"success_{tol}_ci95"] = list(wilson(k, n))
@@ -324,6 +335,7 @@ def run_trials(
     meta_path, log = out / "config.json", out / "trials.jsonl"
     meta = {"schema": SCHEMA, **asdict(cfg), "retired": {}, "trial_set": TRIAL_SET,
             "model_sha256": weights_of(cfg.model)}  # fmt: skip
+    meta = json.loads(json.dumps(meta))  # as the folder will hold it (a tuple is a list)
     old_meta = json.loads(meta_path.read_text()) if meta_path.exists() else None
     if old_meta is not None:
         old, new = _compared(old_meta), _compared(meta)

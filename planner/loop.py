@@ -27,10 +27,24 @@ from se3net.device import check_device
 from sim import Observation, PushWorld
 from sim.planar import pose_errors
 
-TIGHT = (0.02, 10.0)
-"""success: position within 2 cm and yaw within 10 degrees"""
-LOOSE = (0.05, 20.0)
-"""loose success: within 5 cm and 20 degrees"""
+TOLERANCES = {"precise": (0.01, 5.0), "tight": (0.02, 10.0), "loose": (0.05, 20.0)}
+"""the named success tolerances: position (m) and yaw (deg) of the object's final pose"""
+PRECISE, TIGHT, LOOSE = TOLERANCES["precise"], TOLERANCES["tight"], TOLERANCES["loose"]
+
+
+def check_tolerance(tolerance: tuple[float, float] | list[float] | str) -> tuple[float, float]:
+    """A tolerance by name (``precise``, ``tight``, ``loose``) or as (position m, yaw deg), or
+    an InputError saying what is wrong."""
+    if isinstance(tolerance, str):
+        if tolerance not in TOLERANCES:
+            raise InputError(f"--tolerance is {', '.join(TOLERANCES)} or two numbers (metres, "
+                             f"degrees), got {tolerance!r}")  # fmt: skip
+        return TOLERANCES[tolerance]
+    pos, yaw = (float(x) for x in tolerance)
+    if not (math.isfinite(pos) and math.isfinite(yaw) and pos > 0 and yaw > 0):
+        raise InputError(f"--tolerance takes a position (m) and a yaw (deg) above 0, got "
+                         f"{pos:g} {yaw:g}")  # fmt: skip
+    return pos, yaw
 
 
 class NullVisualiser:
@@ -73,9 +87,12 @@ class PushConfig:
     (exploration when collecting planner-visited data; 0 = the plan's action as it is)"""
     plan: PlanSettings = PlanSettings()
     """the planning settings: optimiser, cost, rollout (the optimiser's seed is ``seed``)"""
+    tolerance: tuple[float, float] = TIGHT
+    """the push ends once the object is within this position (m) and yaw (deg) of the goal"""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
+        object.__setattr__(self, "tolerance", check_tolerance(self.tolerance))
         if not 0.0 <= self.action_noise <= 1.0:
             raise InputError(f"action noise must be in [0, 1], got {self.action_noise}")
         if self.max_steps < 1:
@@ -113,15 +130,22 @@ class PushResult:
     """Outcome of a closed-loop push."""
 
     seed: int
+    success_precise: bool
+    """the final pose is within 1 cm and 5 deg (:data:`PRECISE`)"""
     success_tight: bool
+    """within 2 cm and 10 deg (:data:`TIGHT`)"""
     success_loose: bool
+    """within 5 cm and 20 deg (:data:`LOOSE`)"""
     final_pos_err_m: float
     final_yaw_err_deg: float
     steps: int
     sim_time_s: float
     replan_ms_median: float
     reason: str
-    """"reached", "budget", or why the episode ended"""
+    """"reached" (``tolerance``), "budget", or why the episode ended"""
+    tolerance: tuple[float, float] = TIGHT
+    """the tolerance the push ran to (it went on until the object was within it): a success
+    at a tighter one than this is not measured by the push"""
     others_moved_m: float | None = None
     """how far the push moved the other objects: the largest planar displacement of any of
     them from where it started (None: it was alone)"""
@@ -162,7 +186,7 @@ def push_scenario(name_or_path: str) -> Scenario:
 
 def within(errors: tuple[float, float], tolerance: tuple[float, float] = TIGHT) -> bool:
     """Whether a pose error (position m, yaw deg; ``sim.planar.pose_errors``) is within a
-    tolerance (:data:`TIGHT` or :data:`LOOSE`)."""
+    tolerance (one of :data:`TOLERANCES`)."""
     return errors[0] <= tolerance[0] and errors[1] <= tolerance[1]
 
 
@@ -238,7 +262,7 @@ def run_push(
         return pose_errors(obs.object_poses[cfg.object_index], goal, period)
 
     def reached() -> bool:
-        return within(errors(), TIGHT)
+        return within(errors(), cfg.tolerance)
 
     noise = np.random.default_rng([cfg.seed, 11])
     bound = scenario.action.max_speed_m_s
@@ -281,6 +305,7 @@ def run_push(
         reason = "reached"
     return PushResult(
         seed=cfg.seed,
+        success_precise=within((pos_err, yaw_err), PRECISE),
         success_tight=within((pos_err, yaw_err), TIGHT),
         success_loose=within((pos_err, yaw_err), LOOSE),
         final_pos_err_m=pos_err,
@@ -289,6 +314,7 @@ def run_push(
         sim_time_s=obs.time_s,
         replan_ms_median=float(np.median([r.replan_ms for r in records])) if records else 0.0,
         reason=reason,
+        tolerance=cfg.tolerance,
         others_moved_m=disturbance(others_start, obs.object_poses[others, :2]),
         pushed_object=asdict(world.objects[cfg.object_index]),
         diagnostics=exploitation([asdict(r) for r in records]),

@@ -22,6 +22,8 @@ from se3push.options import (
     planning_options,
     run_command,
     split_option,
+    tolerance,
+    tolerance_option,
 )
 
 
@@ -128,7 +130,8 @@ def _cmd_trials(args: argparse.Namespace) -> int:
     from evaluation.trials import TrialsConfig, run_trials
 
     cfg = TrialsConfig(scenario=args.scenario, n=args.n, model=args.model, seed=args.seed,
-                       max_steps=args.max_steps, plan=plan_settings(args))  # fmt: skip
+                       max_steps=args.max_steps, plan=plan_settings(args),
+                       tolerance=tolerance(args))  # fmt: skip
     s = run_trials(cfg, args.out, workers=args.workers, threads=args.threads, **backend(args))
     print(format_summary(s, f"{args.model} / {cfg.plan.planner} on {args.scenario}, "
                             f"{s['trials']} trials (seed {args.seed})"))  # fmt: skip
@@ -364,6 +367,7 @@ def _parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("trials", help="closed-loop trials with success rates")
     closed_loop_options(s, seed_help="seed of the trial set")
+    tolerance_option(s)
     s.add_argument("--n", type=int, default=50, help="number of trials")
     s.add_argument(
         "--model",
@@ -470,8 +474,10 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("a", metavar="A", help="trial folder (from `se3push trials --out`)")
     s.add_argument("b", metavar="B", help="trial folder of the same --scenario and --seed")
     s.add_argument(
-        "--tolerance", choices=["tight", "loose"], default="tight",
-        help="success within 2 cm & 10 deg (tight) or 5 cm & 20 deg (loose)",
+        "--tolerance", choices=["precise", "tight", "loose"], default="tight",
+        help="pair success within 1 cm & 5 deg (precise: folders whose trials ran on to it), "
+        "2 cm & 10 deg (tight) or 5 cm & 20 deg (loose); every tolerance both measured is "
+        "reported",
     )  # fmt: skip
     s.add_argument("--n", type=int, default=None,
                    help="compare the first N trials (default: every trial both hold)")  # fmt: skip

@@ -37,6 +37,31 @@ def closed_loop_options(
     s.add_argument("--workers", type=int, default=1, help="processes for the trials")
 
 
+def tolerance_option(s: argparse.ArgumentParser) -> None:
+    """``--tolerance``: a name or two numbers; :func:`tolerance` reads it."""
+    s.add_argument(
+        "--tolerance", nargs="+", default=["tight"], metavar="NAME|M DEG",
+        help="the push goes on until the object is within this of its goal: precise (1 cm, "
+        "5 deg), tight (2 cm, 10 deg; the default), loose (5 cm, 20 deg), or metres and degrees",
+    )  # fmt: skip
+
+
+def tolerance(args: argparse.Namespace) -> tuple[float, float]:
+    """The tolerance of :func:`tolerance_option`'s flag."""
+    from planner.loop import check_tolerance
+
+    given = args.tolerance
+    if len(given) == 1:
+        return check_tolerance(given[0])
+    try:
+        pos, yaw = (float(x) for x in given)
+    except ValueError:
+        raise InputError(
+            f"--tolerance is a name or two numbers (metres, degrees), got {' '.join(given)}"
+        ) from None
+    return check_tolerance((pos, yaw))
+
+
 def backend_options(s: argparse.ArgumentParser) -> None:
     """Where the independent jobs of a command run (``sim.jobs``)."""
     s.add_argument(
