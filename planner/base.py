@@ -17,6 +17,38 @@ from planner.cost import PushCost
 from planner.dynamics import Dynamics, PlanState, Rollout
 from scenarios import InputError, Scenario
 
+SPLINES = ("zoh", "linear", "cubic")
+"""how knots make actions (``PlannerConfig.spline``)"""
+
+
+def spline_basis(horizon: int, knots: int, spline: str) -> np.ndarray:
+    """(H, M) the actions' linear map from the knots: ``U = basis @ Z`` for knots Z (M, 2).
+    ``knots`` 0 or ``horizon`` (a knot at every step) gives the identity."""
+    if knots == 0:
+        return np.eye(horizon)
+    steps = np.arange(horizon, dtype=float)
+    if spline == "zoh":  # knot j holds over steps [j H / M, (j + 1) H / M)
+        owner = np.minimum((steps * knots / horizon).astype(int), knots - 1)
+        return (owner[:, None] == np.arange(knots)[None]).astype(float)
+    at = np.linspace(0.0, horizon - 1, knots)
+    if spline == "linear":
+        return np.stack([np.interp(steps, at, np.eye(knots)[j]) for j in range(knots)], 1)
+    from scipy.interpolate import CubicSpline
+
+    if knots == 2:  # a cubic through two points is the line
+        return spline_basis(horizon, knots, "linear")
+    return CubicSpline(at, np.eye(knots), bc_type="natural")(steps)
+
+
+def shift_operator(basis: np.ndarray) -> np.ndarray:
+    """(M, M) the warm start one control step later: the knots whose actions best fit (least
+    squares) the plan's actions advanced by a step, its last action held. The identity basis
+    gives the plain shift (drop the first action, repeat the last)."""
+    H = basis.shape[0]
+    advance = np.eye(H, k=1)
+    advance[-1, -1] = 1.0
+    return np.linalg.pinv(basis) @ advance @ basis
+
 
 @dataclass(frozen=True)
 class PlannerConfig:
@@ -33,6 +65,14 @@ class PlannerConfig:
     are its least reliable (a glancing push is predicted to keep the object in front of the
     pusher, which slides off it), and with 3 the default model succeeded in more paired dev
     trials on every scenario (docs/planner.md: three steps ahead, not four)"""
+    knots: int = 0
+    """the plan's free values per action dimension: a spline through this many knots spread
+    over the horizon gives the action at each control step (0: one per step, the actions
+    themselves); every optimiser optimises the knots"""
+    spline: str = "linear"
+    """how the knots make actions (with ``knots`` > 0): ``zoh`` (each knot held over its share
+    of the steps), ``linear`` or ``cubic`` (a natural cubic spline) through knots at evenly
+    spaced steps from the first to the last"""
     samples: int = 32
     """candidate sequences per iteration (CEM: the first iteration's; MPPI)"""
     iterations: int = 3
@@ -81,6 +121,13 @@ class PlannerConfig:
         for name in positive:
             if getattr(self, name) < 1:
                 raise InputError(f"{name} must be a positive integer, got {getattr(self, name)}")
+        if self.knots < 0 or self.knots > self.horizon:
+            raise InputError(f"knots must be 0 (one per step) or 1..horizon ({self.horizon}), "
+                             f"got {self.knots}")  # fmt: skip
+        if self.spline not in SPLINES:
+            raise InputError(f"spline must be one of {', '.join(SPLINES)}, got {self.spline!r}")
+        if self.spline != "zoh" and self.knots == 1:
+            raise InputError(f"a {self.spline} spline needs at least 2 knots (1: spline zoh)")
         if self.elites < 2:  # CEM refits an SD to them
             raise InputError(
                 f"elites must be at least 2 (CEM fits a spread to them), got {self.elites}"
@@ -128,8 +175,8 @@ class PlanInfo:
 
 
 class Best:
-    """The lowest-cost sequence an optimiser has evaluated, with its rollout, so that the
-    chosen plan is not rolled out a second time."""
+    """The lowest-cost plan (its knots) an optimiser has evaluated, with its rollout, so that
+    the chosen plan is not rolled out a second time."""
 
     def __init__(self) -> None:
         self.actions: torch.Tensor | None = None
@@ -137,7 +184,7 @@ class Best:
         self.rollout: Rollout | None = None
 
     def offer(self, U: torch.Tensor, cost: torch.Tensor, rollout: Rollout) -> None:
-        """Keep the cheapest of candidates U (K,H,2) with costs (K,) if it beats the best."""
+        """Keep the cheapest of candidates U (K,M,2) with costs (K,) if it beats the best."""
         cost = cost.nan_to_num(nan=math.inf)  # a NaN never wins (argmin would pick it)
         i = int(cost.argmin())
         if self.actions is None or float(cost[i]) < self.cost:
@@ -166,31 +213,54 @@ class Planner:
         self.dynamics, self.cost, self.cfg = dynamics, cost, cfg
         self.bound = scenario.action.max_speed_m_s
         self.gen = torch.Generator().manual_seed(cfg.seed)
+        basis = spline_basis(cfg.horizon, cfg.knots, cfg.spline)
+        self.identity = cfg.knots in (0, cfg.horizon)  # a knot per step: the actions
+        self.basis = torch.from_numpy(basis).float()  # (H, M): actions from knots
+        self.shift = torch.from_numpy(shift_operator(basis)).float()  # (M, M)
         self.reset()
+
+    @property
+    def n_knots(self) -> int:
+        """M, the knots (free values per action dimension) of a plan."""
+        return self.basis.shape[1]
 
     def reset(self) -> None:
         """Forget the warm start (a new episode)."""
-        self.nominal = torch.zeros(self.cfg.horizon, 2)
+        self.nominal = torch.zeros(self.n_knots, 2)  # the warm start's knots
         self.last_action = torch.zeros(2)  # the action executed before this plan
         self.gen.manual_seed(self.cfg.seed)
 
-    def clamp(self, U: torch.Tensor) -> torch.Tensor:
-        return U.clamp(-self.bound, self.bound)
+    def clamp(self, Z: torch.Tensor) -> torch.Tensor:
+        return Z.clamp(-self.bound, self.bound)
 
-    def evaluate(self, state: PlanState, U: torch.Tensor) -> tuple[torch.Tensor, Rollout]:
-        """Costs (K,) and rollouts of sequences U (K,H,2)."""
+    def actions(self, Z: torch.Tensor) -> torch.Tensor:
+        """(..., H, 2) the actions of knots Z (..., M, 2), inside the bounds (a cubic spline
+        through knots inside them can overshoot)."""
+        if self.identity:
+            return Z
+        return self.clamp(torch.einsum("hm,...mc->...hc", self.basis.to(Z), Z))
+
+    def shifted(self, Z: torch.Tensor) -> torch.Tensor:
+        """Knots Z (..., M, 2) one control step later (:func:`shift_operator`)."""
+        if self.identity:
+            return torch.cat([Z[..., 1:, :], Z[..., -1:, :]], -2)
+        return self.clamp(torch.einsum("nm,...mc->...nc", self.shift.to(Z), Z))
+
+    def evaluate(self, state: PlanState, Z: torch.Tensor) -> tuple[torch.Tensor, Rollout]:
+        """Costs (K,) and rollouts of the plans of knots Z (K,M,2)."""
+        U = self.actions(Z)
         rollout = self.dynamics.rollout(state, U)
         return self.cost.cost(state, rollout, U, last_action=self.last_action), rollout
 
     def noise(self, K: int) -> torch.Tensor:
-        """Standard normal noise (K,H,2) from the planner's generator."""
-        return torch.randn(K, self.cfg.horizon, 2, generator=self.gen)
+        """Standard normal noise (K,M,2) on knots, from the planner's generator."""
+        return torch.randn(K, self.n_knots, 2, generator=self.gen)
 
     def _optimise(
-        self, state: PlanState, U0: torch.Tensor
+        self, state: PlanState, Z0: torch.Tensor
     ) -> tuple[torch.Tensor, int] | tuple[Best, int]:
-        """The plan (H,2), or the :class:`Best` candidate with its rollout, and the number of
-        iterations run, from the warm start U0 (H,2)."""
+        """The plan's knots (M,2), or the :class:`Best` candidate with its rollout, and the
+        number of iterations run, from the warm start's knots Z0 (M,2)."""
         raise NotImplementedError
 
     def executed(self, action: np.ndarray) -> None:
@@ -203,12 +273,13 @@ class Planner:
         t0 = time.perf_counter()
         found, iterations = self._optimise(state, self.clamp(self.nominal))
         if isinstance(found, Best):  # evaluated already: its rollout is the plan's
-            U, rollout, cost = found.actions, found.rollout, torch.tensor([found.cost])
+            Z, rollout, cost = found.actions, found.rollout, torch.tensor([found.cost])
         else:
-            U = self.clamp(found.detach())
+            Z = self.clamp(found.detach())
             with torch.no_grad():
-                cost, rollout = self.evaluate(state, U[None])
-        self.nominal = torch.cat([U[1:], U[-1:]])  # warm start for the next replan
+                cost, rollout = self.evaluate(state, Z[None])
+        U = self.actions(Z)
+        self.nominal = self.shifted(Z)  # warm start for the next replan
         self.last_action = U[0].clone()
         # float32 0.15 is 0.15000000596: clip in float64 so that the world accepts the action
         actions = np.clip(U.double().numpy(), -self.bound, self.bound)

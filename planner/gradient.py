@@ -90,13 +90,13 @@ class SQPPlanner(Planner):
         return self._problems[(m, n)]
 
     def _residuals(self, state: PlanState, flat: torch.Tensor) -> torch.Tensor:
-        U = flat.view(1, self.cfg.horizon, 2)
+        U = self.actions(flat.view(1, self.n_knots, 2))
         rollout = self.dynamics.rollout(state, U)
         return self.cost.residuals(state, rollout, U, last_action=self.last_action)[0]
 
     def _jacobian(self, state: PlanState, flat: torch.Tensor) -> torch.Tensor:
-        """(m, n) Jacobian of the residuals with respect to the n = H*2 actions."""
-        # forward mode, vectorised: one batched pass for the few (H x 2) action inputs
+        """(m, n) Jacobian of the residuals with respect to the n = M*2 knot values."""
+        # forward mode, vectorised: one batched pass for the few (M x 2) inputs
         return torch.autograd.functional.jacobian(
             lambda x: self._residuals(state, x), flat, vectorize=True, strategy="forward-mode"
         ).detach()
@@ -163,4 +163,4 @@ class SQPPlanner(Planner):
             elif rho < self.shrink_below:
                 radius *= 0.5
             U, cost, r0, J = trial, trial_cost, r_trial, None
-        return U.view(c.horizon, 2), c.iterations
+        return U.view(self.n_knots, 2), c.iterations

@@ -17,7 +17,8 @@ class CEMPlanner(Planner):
     With the iCEM settings (Pinneri et al., 2020) it needs fewer rollouts for the same plan:
     noise correlated along the horizon (``colour``), a population that shrinks over the
     iterations (``shrink``), a share of the last replan's elites kept, shifted by one step
-    (``keep_elites``), and a smaller SD when warm-started (``warm_std``)."""
+    (``keep_elites``), and a smaller SD when warm-started (``warm_std``). It samples the
+    plan's knots (``PlannerConfig.knots``; one per step by default)."""
 
     name = "cem"
 
@@ -35,7 +36,7 @@ class CEMPlanner(Planner):
             n = c.population(it)
             eps = self.noise(n)
             if c.colour > 0:  # AR(1): noise correlated along the horizon
-                for h in range(1, c.horizon):
+                for h in range(1, self.n_knots):
                     eps[:, h] = c.colour * eps[:, h - 1] + math.sqrt(1 - c.colour**2) * eps[:, h]
             U = self.clamp(mean + std * eps)
             U[0] = mean
@@ -48,7 +49,7 @@ class CEMPlanner(Planner):
             mean = U[elite].mean(0)
             std = U[elite].std(0).clamp_min(c.min_std * self.bound)
         keep = round(c.keep_elites * c.elites)
-        self.kept = torch.cat([U[elite[:keep], 1:], U[elite[:keep], -1:]], 1)
+        self.kept = self.shifted(U[elite[:keep]])
         return best, c.iterations
 
 

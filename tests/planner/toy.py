@@ -52,10 +52,17 @@ def optimum(
     dt: float,
     bound: float,
     last_action: np.ndarray | None = None,
+    basis: np.ndarray | None = None,
 ) -> float:
     """The exact minimum of the toy's cost over sequences within the bounds (``last_action``:
-    the action executed before the plan)."""
-    U = cp.Variable((horizon, 2))
+    the action executed before the plan; ``basis`` (H, M): over the sequences of M knots
+    within the bounds, ``basis @ knots``, a zoh or linear spline's)."""
+    if basis is None:
+        U = cp.Variable((horizon, 2))
+        box = [U >= -bound, U <= bound]
+    else:
+        Z = cp.Variable((basis.shape[1], 2))
+        U, box = basis @ Z, [Z >= -bound, Z <= bound]
     c = cost.cfg
     w = np.full(horizon, np.sqrt(c.w_running))
     w[-1] = np.sqrt(c.w_terminal)
@@ -68,6 +75,6 @@ def optimum(
         terms.append(c.w_action * cp.sum_squares(U[h]) / bound**2)
         prev = (np.zeros(2) if last_action is None else last_action) if h == 0 else U[h - 1]
         terms.append(c.w_smooth * cp.sum_squares(U[h] - prev) / bound**2)
-    prob = cp.Problem(cp.Minimize(sum(terms)), [U >= -bound, U <= bound])
+    prob = cp.Problem(cp.Minimize(sum(terms)), box)
     prob.solve(solver=cp.CLARABEL)
     return float(prob.value)
