@@ -25,8 +25,11 @@ import torch
 
 from sim.folders import LOCK_NAME
 
-WALL_CLOCK = ("replan_ms", "elapsed_s")
-"""keys (or parts of keys) of figures that time the machine, not the computation"""
+WALL_CLOCK = ("replan_ms", "elapsed_s", "model_sha256")
+"""keys (or parts of keys) of figures that time the machine, not the computation; and the
+hash of a checkpoint file, which records its data folders by name (those of the run's own
+folder differ between the runs compared; the checkpoints themselves are compared field by
+field)"""
 
 
 def _command(name: str, root: Path, out: Path) -> list[str]:
