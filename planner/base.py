@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -172,6 +172,8 @@ class PlanInfo:
     cost: float
     iterations: int
     wall_ms: float
+    cost_terms: dict[str, float] = field(default_factory=dict)
+    """each term's share of ``cost`` (``planner.cost.TERMS``), which they sum to"""
 
 
 class Best:
@@ -189,13 +191,15 @@ class Best:
         i = int(cost.argmin())
         if self.actions is None or float(cost[i]) < self.cost:
             self.actions, self.cost = U[i].clone(), float(cost[i])
+
+            def pick(x: torch.Tensor | None) -> torch.Tensor | None:
+                """The chosen candidate's part of an optional prediction."""
+                return None if x is None else x[i : i + 1].detach().clone()
+
             self.rollout = Rollout(
-                rollout.object_poses[i : i + 1].detach().clone(),
-                rollout.pusher_xy[i : i + 1].detach().clone(),
-                spread=None
-                if rollout.spread is None
-                else rollout.spread[i : i + 1].detach().clone(),
-            )
+                pick(rollout.object_poses), pick(rollout.pusher_xy),
+                spread=pick(rollout.spread), other_poses=pick(rollout.other_poses),
+            )  # fmt: skip
 
 
 class Planner:
@@ -279,6 +283,8 @@ class Planner:
             with torch.no_grad():
                 cost, rollout = self.evaluate(state, Z[None])
         U = self.actions(Z)
+        with torch.no_grad():
+            terms = self.cost.cost_terms(state, rollout, U[None], last_action=self.last_action)
         self.nominal = self.shifted(Z)  # warm start for the next replan
         self.last_action = U[0].clone()
         # float32 0.15 is 0.15000000596: clip in float64 so that the world accepts the action
@@ -290,5 +296,6 @@ class Planner:
             cost=float(cost[0]),
             iterations=iterations,
             wall_ms=1e3 * (time.perf_counter() - t0),
+            cost_terms={name: float(v[0]) for name, v in terms.items()},
         )
         return actions[0].copy(), info

@@ -42,6 +42,20 @@ from planner.dynamics import PlanState, Rollout, segment_distance
 from scenarios import InputError, Scenario
 from sim.planar import wrap_angle
 
+TERMS = {
+    "position": "the object's position error to the goal, per step (the last weighted most)",
+    "yaw": "its symmetry-aware yaw error, likewise (objects with a heading to turn)",
+    "shaping": "the pusher's distance to the way round to behind the object",
+    "action": "the actions' size",
+    "smooth": "the actions' change from step to step (from the last executed action)",
+    "workspace": "the pusher's distance outside the workspace",
+    "keepout": "the pusher's path inside the object's circle while it is not yet behind it",
+    "spread": "an ensemble's disagreement about the object's poses",
+    "disturb": "how far the other objects are predicted to move",
+}
+"""the cost's terms, each a weighted residual (``PushCost.residual_terms``); the cost is the
+sum of their squares"""
+
 SHAPING_FADES = ("behind", "everywhere")
 """where predicted motion may fade the shaping term (``CostConfig.shaping_fade``)"""
 
@@ -190,27 +204,28 @@ class PushCost:
             return 1.0
         return min(1.0, float((self.goal[:2] - state.object_pose[:2].to(self.goal)).norm()) / near)
 
-    def residuals(
+    def residual_terms(
         self,
         state: PlanState,
         rollout: Rollout,
         actions: torch.Tensor,
         *,
         last_action: torch.Tensor,
-    ) -> torch.Tensor:
-        """(K, m) residuals of K rollouts of ``actions`` (K,H,2); ``last_action`` (2,) is the
-        action executed before this plan (the smoothness term's a_{-1})."""
+    ) -> dict[str, torch.Tensor]:
+        """The weighted residuals (K, m_i) of each of :data:`TERMS` that applies, for K rollouts
+        of ``actions`` (K,H,2); ``last_action`` (2,) is the action executed before this plan
+        (the smoothness term's a_{-1})."""
         c = self.cfg
         K, H, _ = actions.shape
         goal = self.goal.to(actions)
         w = torch.full((H,), math.sqrt(c.w_running), dtype=actions.dtype, device=actions.device)
         w[-1] = math.sqrt(c.w_terminal)
         pos = (rollout.object_poses[..., :2] - goal[:2]) / c.pos_scale_m * w[None, :, None]
-        res = [pos.flatten(1)]
+        res = {"position": pos.flatten(1)}
         period = state.yaw_period_rad
         if period is not None:
             yaw = wrap_angle(rollout.object_poses[..., 2] - goal[2], period) / c.yaw_scale_rad
-            res.append(math.sqrt(c.w_yaw) * yaw * w)
+            res["yaw"] = math.sqrt(c.w_yaw) * yaw * w
         moved_sq = ((rollout.object_poses[:, -1, :2] - state.object_pose[:2].to(actions)) ** 2).sum(
             -1
         )
@@ -223,12 +238,12 @@ class PushCost:
         dist = (
             rollout.pusher_xy[:, -1] - self.shaping_target(state).to(actions)
         ) / c.shaping_scale_m
-        res.append(math.sqrt(c.w_shaping) * fade * sqrt_gate[:, None] * dist)
-        res.append(math.sqrt(c.w_action) * actions.flatten(1) / self.bound)
+        res["shaping"] = math.sqrt(c.w_shaping) * fade * sqrt_gate[:, None] * dist
+        res["action"] = math.sqrt(c.w_action) * actions.flatten(1) / self.bound
         prev = torch.cat([last_action.to(actions).expand(K, 1, 2), actions[:, :-1]], 1)
-        res.append(math.sqrt(c.w_smooth) * (actions - prev).flatten(1) / self.bound)
+        res["smooth"] = math.sqrt(c.w_smooth) * (actions - prev).flatten(1) / self.bound
         out = torch.relu(rollout.pusher_xy.abs() - self.half.to(actions)) / 0.01
-        res.append(math.sqrt(c.w_workspace) * out.flatten(1))
+        res["workspace"] = math.sqrt(c.w_workspace) * out.flatten(1)
         if c.w_keepout > 0 and not behind:
             path = torch.cat([state.pusher_xy.to(actions).expand(K, 1, 2), rollout.pusher_xy], 1)
             centre = state.object_pose[:2].to(actions).expand(K, 2)
@@ -236,13 +251,38 @@ class PushCost:
             depth = torch.stack(
                 [torch.relu(keep - segment_distance(centre, path[:, h], path[:, h + 1]))
                  for h in range(H)], 1)  # fmt: skip
-            res.append(math.sqrt(c.w_keepout) * fade * depth / c.pos_scale_m)
+            res["keepout"] = math.sqrt(c.w_keepout) * fade * depth / c.pos_scale_m
         if rollout.spread is not None and c.w_spread > 0:
-            res.append(math.sqrt(c.w_spread) * rollout.spread / c.pos_scale_m)
+            res["spread"] = math.sqrt(c.w_spread) * rollout.spread / c.pos_scale_m
         if rollout.other_poses is not None and c.w_disturb > 0 and state.n_others:
             moved = rollout.other_poses[:, -1, :, :2] - state.other_poses[:, :2].to(actions)
-            res.append(math.sqrt(c.w_disturb) * moved.flatten(1) / c.pos_scale_m)
-        return torch.cat(res, 1)
+            res["disturb"] = math.sqrt(c.w_disturb) * moved.flatten(1) / c.pos_scale_m
+        return res
+
+    def residuals(
+        self,
+        state: PlanState,
+        rollout: Rollout,
+        actions: torch.Tensor,
+        *,
+        last_action: torch.Tensor,
+    ) -> torch.Tensor:
+        """(K, m) every term's residuals side by side (:meth:`residual_terms`)."""
+        terms = self.residual_terms(state, rollout, actions, last_action=last_action)
+        return torch.cat(list(terms.values()), 1)
+
+    def cost_terms(
+        self,
+        state: PlanState,
+        rollout: Rollout,
+        actions: torch.Tensor,
+        *,
+        last_action: torch.Tensor,
+    ) -> dict[str, torch.Tensor]:
+        """(K,) each term's share of the cost (its residuals' sum of squares): they sum to
+        :meth:`cost`."""
+        terms = self.residual_terms(state, rollout, actions, last_action=last_action)
+        return {name: (r**2).sum(1) for name, r in terms.items()}
 
     def cost(
         self,

@@ -123,6 +123,8 @@ class StepRecord:
     """the progress that happened"""
     pusher_seen: bool
     """whether the camera saw the pusher when the plan was made (``Observation.pusher_seen``)"""
+    cost_terms: dict[str, float] = field(default_factory=dict)
+    """the chosen plan's cost, term by term (``PlanInfo.cost_terms``): which term dominated"""
 
 
 @dataclass
@@ -156,9 +158,9 @@ class PushResult:
     records: list[StepRecord] = field(default_factory=list)
 
     def summary(self) -> dict:
-        """The result line's fields, with each step's predicted and actual motion (not the
-        full per-step records)."""
-        keys = ("step", *STEP_FIGURES, "pusher_seen")
+        """The result line's fields, with each step's predicted and actual motion and its plan's
+        cost term by term (not the full per-step records)."""
+        keys = ("step", *STEP_FIGURES, "pusher_seen", "cost_terms")
         per_step = [{k: getattr(r, k) for k in keys} for r in self.records]
         return {**{k: v for k, v in asdict(self).items() if k != "records"}, "per_step": per_step}
 
@@ -291,7 +293,7 @@ def run_push(
             figures = step_figures(before, info.predicted_poses[0], pose, goal)
             rec = StepRecord(step + 1, action.tolist(), pose.tolist(), *errors(), info.wall_ms,
                              info.predicted_poses.tolist(), **figures,
-                             pusher_seen=seen)  # fmt: skip
+                             pusher_seen=seen, cost_terms=info.cost_terms)  # fmt: skip
             records.append(rec)
             if on_step is not None:
                 on_step(rec)

@@ -234,3 +234,29 @@ def test_predicted_motion_does_not_stop_the_way_round_until_the_pusher_is_behind
         assert after < 0.01, (before, after)
     else:  # it stays put
         assert after > 0.95 * before, (before, after)
+
+
+def test_the_cost_terms_sum_to_the_total_and_a_plan_reports_them():
+    """Each term's share of the cost, for every candidate: they sum to the cost the optimiser
+    minimised, and the chosen plan carries them (the keep-out term is there only while the
+    pusher is not behind the object, the spread term only for an ensemble)."""
+    from planner import PlannerConfig, make_planner
+    from planner.cost import TERMS
+    from tests.planner.toy import TOY_COST, CarriedDisk, toy_state
+
+    scenario = load_scenario("single_box")
+    cost = PushCost(scenario, torch.tensor([0.1, -0.05, 0.5]), TOY_COST)
+    planner = make_planner("cem", CarriedDisk(scenario.action.dt_control_s), cost, scenario,
+                           PlannerConfig(samples=16, iterations=2, elites=4))  # fmt: skip
+    state = toy_state()
+    U = 0.1 * torch.randn(5, 3, 2, generator=torch.Generator().manual_seed(0))
+    rollout = planner.dynamics.rollout(state, U)
+    terms = cost.cost_terms(state, rollout, U, last_action=torch.zeros(2))
+    assert set(terms) <= set(TERMS) and {"position", "action", "smooth"} <= set(terms)
+    assert "yaw" not in terms  # a disk has no heading to turn
+    total = cost.cost(state, rollout, U, last_action=torch.zeros(2))
+    torch.testing.assert_close(sum(terms.values()), total)
+    assert all((v >= 0).all() for v in terms.values()) and terms["position"].max() > 0
+    _, info = planner.plan(state)
+    assert set(info.cost_terms) == set(terms)
+    assert sum(info.cost_terms.values()) == pytest.approx(info.cost, rel=1e-5)
