@@ -117,6 +117,9 @@ PLAN_FEEDBACK = "rendered"
 CONTACT_MARGIN_M = 0.01
 """the planner's default contact margin (:func:`contact_gate`; the backends' own default is
 none)"""
+SKIP_BEYOND_M = 0.01
+"""a learned backend skips the network for a candidate whose pusher stays this far beyond the
+contact gate's reach of every object (5 softness widths: the gate is below 0.7 %)"""
 CONTACT_SOFTNESS_M = 0.002
 """how sharply :func:`contact_gate` closes: over a few millimetres beyond the reach, so that
 its gradient is finite"""
@@ -290,7 +293,50 @@ class LearnedDynamics:
         )
 
     def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
-        """Predictions for ``actions`` (K,H,2); ``clouds`` at the network's resolution."""
+        """Predictions for ``actions`` (K,H,2); ``clouds`` at the network's resolution.
+
+        With a contact margin, a candidate whose pusher stays out of reach of every object over
+        the whole horizon (``SKIP_BEYOND_M`` beyond the gate's reach) is not rolled through the
+        network: the gate would keep under 0.7 % of whatever motion the network predicted for
+        it, so its objects stay where they are. Only where no gradient is taken (CEM and MPPI
+        evaluate under inference mode): the choice depends on the actions."""
+        if self.contact_margin is None or clouds or torch.is_grad_enabled():
+            return self._rollout(state, actions, clouds=clouds)
+        far = self.out_of_reach(state, actions)
+        if not far.any():
+            return self._rollout(state, actions)
+        K, H, _ = actions.shape
+        pusher = integrate_pusher(state, actions, self.dt)
+        poses = state.object_pose.to(actions).expand(K, H, 3).clone()
+        others = None
+        if state.n_others:
+            others = state.other_poses.to(actions).expand(K, H, -1, 3).clone()
+        if not far.all():
+            near = self._rollout(state, actions[~far])
+            poses[~far] = near.object_poses
+            if others is not None:
+                others[~far] = near.other_poses
+        return Rollout(poses, pusher, other_poses=others)
+
+    def out_of_reach(self, state: PlanState, actions: torch.Tensor) -> torch.Tensor:
+        """(K,) bool: the candidates whose pusher path stays more than the contact gate's
+        reach and ``SKIP_BEYOND_M`` from every object (as it is now) at every step."""
+        K = actions.shape[0]
+        pusher = integrate_pusher(state, actions, self.dt)
+        path = torch.cat([state.pusher_xy.to(pusher).expand(K, 1, 2), pusher], 1)
+        objects = [(state.object_pose[:2], state.footprint_radius_m)]
+        if state.n_others and state.other_radii_m is not None:
+            objects += list(zip(state.other_poses[:, :2], state.other_radii_m, strict=True))
+        far = torch.ones(K, dtype=torch.bool, device=actions.device)
+        for centre, radius in objects:
+            reach = float(radius) + self.pusher_radius + self.contact_margin + SKIP_BEYOND_M
+            c = centre.to(pusher).expand(K, 2)
+            for h in range(path.shape[1] - 1):
+                far &= segment_distance(c, path[:, h], path[:, h + 1]) > reach
+        return far
+
+    def _rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
+        """Every candidate through the network (:meth:`rollout`)."""
         K, H, _ = actions.shape
         caller = actions.device  # the network runs on self.device; results go back to the caller
         actions = actions.to(self.device)

@@ -364,3 +364,31 @@ def test_an_ensemble_with_an_empty_name_is_refused():
 
     with pytest.raises(InputError, match="an empty name between the"):
         make_dynamics("se3net", load_scenario("single_box"), model="default+")
+
+
+def test_skipping_the_network_out_of_reach_gives_the_full_rollout_to_within_a_micrometre():
+    """Candidates whose pusher stays out of reach of the box skip the network; the rollout is
+    the full one (every candidate through the network) to the gate's leak, here below 1 um;
+    candidates that reach the box go through the network as before, exactly."""
+    from planner.dynamics import SKIP_BEYOND_M
+
+    scenario = load_scenario("single_box")
+    world = PushWorld(scenario)
+    obs = world.reset(3)
+    state = plan_state(obs, world)
+    dyn = make_dynamics("se3net", scenario, feedback="rendered", contact_margin_m=0.01)
+    gen = torch.Generator().manual_seed(0)
+    to_box = state.object_pose[:2] - state.pusher_xy
+    towards = (0.15 * to_box / to_box.norm()).expand(16, 8, 2)
+    U = torch.cat([towards, 0.15 * (2 * torch.rand(48, 8, 2, generator=gen) - 1)])
+    with torch.inference_mode():
+        far = dyn.out_of_reach(state, U)
+        skipped = dyn.rollout(state, U)
+        full = dyn._rollout(state, U)
+    assert 0 < far.sum() < len(U) and not far[:16].any()  # both kinds, the straight pushes near
+    reach = state.footprint_radius_m + scenario.arm.pusher_radius_m + 0.01 + SKIP_BEYOND_M
+    assert (state.pusher_xy - state.object_pose[:2]).norm() > reach  # it starts out of reach
+    torch.testing.assert_close(skipped.object_poses[~far], full.object_poses[~far])
+    assert (skipped.object_poses[far] - full.object_poses[far]).abs().max() < 1e-6
+    assert (skipped.object_poses[far] == state.object_pose).all()
+    torch.testing.assert_close(skipped.pusher_xy, full.pusher_xy)
