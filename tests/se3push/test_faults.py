@@ -161,11 +161,15 @@ def _second_writer_is_refused(name: str, root: Path, out: Path, first: subproces
         assert first.poll() is None, "the first run ended before it took its folder"
         assert time.monotonic() < end
         time.sleep(0.02)
-    second = subprocess.run(
-        [sys.executable, "-m", "se3push.cli", *_command(name, root, out)],
-        capture_output=True, text=True, timeout=60,
-        env={**os.environ, "OMP_NUM_THREADS": "1"}, cwd=root,
-    )  # fmt: skip
+    first.send_signal(signal.SIGSTOP)  # it holds the folder, however fast it would finish
+    try:
+        second = subprocess.run(
+            [sys.executable, "-m", "se3push.cli", *_command(name, root, out)],
+            capture_output=True, text=True, timeout=60,
+            env={**os.environ, "OMP_NUM_THREADS": "1"}, cwd=root,
+        )  # fmt: skip
+    finally:
+        first.send_signal(signal.SIGCONT)
     assert second.returncode == 2, second.stderr
     err = second.stderr.strip().splitlines()
     assert len(err) == 1 and f"process {first.pid}" in err[0] and str(out) in err[0], err
