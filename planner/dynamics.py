@@ -117,9 +117,10 @@ PLAN_FEEDBACK = "rendered"
 CONTACT_MARGIN_M = 0.01
 """the planner's default contact margin (:func:`contact_gate`; the backends' own default is
 none)"""
-SKIP_BEYOND_M = 0.01
+SKIP_BEYOND_M = 0.03
 """a learned backend skips the network for a candidate whose pusher stays this far beyond the
-contact gate's reach of every object (5 softness widths: the gate is below 0.7 %)"""
+contact gate's reach of every object (15 softness widths: the gate is below 3e-7, so a
+predicted step of a centimetre would move the object less than float32 resolves)"""
 CONTACT_SOFTNESS_M = 0.002
 """how sharply :func:`contact_gate` closes: over a few millimetres beyond the reach, so that
 its gradient is finite"""
@@ -297,8 +298,8 @@ class LearnedDynamics:
 
         With a contact margin, a candidate whose pusher stays out of reach of every object over
         the whole horizon (``SKIP_BEYOND_M`` beyond the gate's reach) is not rolled through the
-        network: the gate would keep under 0.7 % of whatever motion the network predicted for
-        it, so its objects stay where they are. Only where no gradient is taken (CEM and MPPI
+        network: the gate would keep under 3e-7 of whatever motion the network predicted for
+        it, so its objects stay where they are, as in the full rollout. Only where no gradient is taken (CEM and MPPI
         evaluate under inference mode): the choice depends on the actions."""
         if self.contact_margin is None or clouds or torch.is_grad_enabled():
             return self._rollout(state, actions, clouds=clouds)
