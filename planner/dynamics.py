@@ -263,6 +263,8 @@ class LearnedDynamics:
     """
 
     differentiable = True
+    skip_out_of_reach = True
+    """skip the network for candidates out of reach (:meth:`rollout`; off: to time the lever)"""
 
     def __init__(
         self,
@@ -299,9 +301,15 @@ class LearnedDynamics:
         With a contact margin, a candidate whose pusher stays out of reach of every object over
         the whole horizon (``SKIP_BEYOND_M`` beyond the gate's reach) is not rolled through the
         network: the gate would keep under 3e-7 of whatever motion the network predicted for
-        it, so its objects stay where they are, as in the full rollout. Only where no gradient is taken (CEM and MPPI
-        evaluate under inference mode): the choice depends on the actions."""
-        if self.contact_margin is None or clouds or torch.is_grad_enabled():
+        it, so its objects stay where they are, as in the full rollout. Only where no gradient
+        is taken (CEM and MPPI evaluate under inference mode): the choice depends on the
+        actions."""
+        if (
+            self.contact_margin is None
+            or clouds
+            or torch.is_grad_enabled()
+            or not self.skip_out_of_reach
+        ):
             return self._rollout(state, actions, clouds=clouds)
         far = self.out_of_reach(state, actions)
         if not far.any():

@@ -450,6 +450,8 @@ def bench_ddp(*, repeats: int, device: str = "cpu", iters: int = 60, batch: int 
     return out
 
 
+from se3push.bench_horizon import bench_horizon  # noqa: E402 (its helpers are above)
+
 BENCHES: dict[str, Callable[..., dict[str, float]]] = {
     "world": bench_world,
     "data": bench_data,
@@ -457,6 +459,7 @@ BENCHES: dict[str, Callable[..., dict[str, float]]] = {
     "planner": bench_planner,
     "sampling": bench_sampling,
     "ddp": bench_ddp,
+    "horizon": bench_horizon,
 }
 
 

@@ -227,6 +227,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     options = (
         {"model": args.model, "flow_model": args.flow_model, "device": args.device}
         if args.what == "planner"
+        else {"model": args.model, "device": args.device}
+        if args.what == "horizon"
         else {"device": args.device}
         if args.what == "ddp"
         else {}
@@ -454,7 +456,8 @@ def _parser() -> argparse.ArgumentParser:
     s.set_defaults(run=_cmd_config)
 
     s = sub.add_parser("bench", help="time the hot paths (medians over repeats)")
-    s.add_argument("what", choices=["world", "data", "model", "planner", "sampling", "ddp"],
+    s.add_argument("what", choices=["world", "data", "model", "planner", "sampling", "ddp",
+                                    "horizon"],
                    help="which benchmark")  # fmt: skip
     s.add_argument("--repeats", type=int, default=20, help="timed repeats per figure")
     s.add_argument("--json", default=None, metavar="PATH", help="also write the figures as JSON")
