@@ -86,7 +86,7 @@ class ImproveConfig:
     batch: int = 32
     eval_every: int = 250
     max_steps: int = 60
-    """actions per plan, in the collection pushes and the held-out trials"""
+    """control steps per push, collected or held out"""
     plan: PlanSettings = PlanSettings()
     """the planning settings of every push (optimiser, cost, rollout)"""
 
