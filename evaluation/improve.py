@@ -234,20 +234,14 @@ def collect(
 
 def finetune(cfg: ImproveConfig, init: str, data: list[str], out: Path) -> str:
     """Fine-tune ``init`` on the pooled ``data`` (the exploration folders first, then the
-    planner-visited ones) into ``out``, the same network trained with the same point loss;
-    returns the best checkpoint."""
-    from se3net.checkpoint import model_config, read_checkpoint
+    planner-visited ones) into ``out``, the same network; returns the best checkpoint."""
+    from se3net.checkpoint import model_config
     from se3net.train import TrainConfig, train
 
-    blob = read_checkpoint(init)
     net = model_config(init)
-    # the point loss: recorded with the weights; before that, only in a run's last.pt
-    run = (blob.get("train_state") or {}).get("config", {})
-    loss = blob.get("extra", {}).get("loss", run.get("loss", TrainConfig.loss))
     tcfg = TrainConfig(
         data=tuple(data), out=str(out), variant=net.variant, k=net.k, stride=net.stride,
-        controls=net.controls, valid_channel=net.valid_channel, full_res_head=net.full_res_head,
-        loss=loss, iters=cfg.finetune_iters, batch=cfg.batch,
+        iters=cfg.finetune_iters, batch=cfg.batch,
         lr=cfg.lr, seed=cfg.seed, eval_every=min(cfg.eval_every, cfg.finetune_iters),
         rollout_steps=cfg.rollout_steps, init=init, later_fraction=cfg.visited_fraction,
         later_from=len(cfg.data),

@@ -145,6 +145,11 @@ def refuse_trained_on(
             )
 
 
+RETIRED_MODEL = {"controls": "fused", "valid_channel": False, "full_res_head": False}
+"""network options tried and not kept (FiLM controls, a validity channel, a full-resolution
+head), with the value that means "not used": a checkpoint that stored them unused loads"""
+
+
 def model_config(path: str | Path) -> ModelConfig:
     """The network configuration a checkpoint holds (say, to read its data at its stride)."""
     return _config_of(read_checkpoint(path), path)
@@ -156,6 +161,14 @@ def _config_of(blob: dict[str, Any], path: str | Path) -> ModelConfig:
     stored = blob.get("model")
     if not isinstance(stored, dict):
         raise CheckpointError(f"checkpoint {path} holds no network configuration")
+    retired = {k: v for k, v in stored.items() if k in RETIRED_MODEL}
+    used = sorted(f"{k}={v}" for k, v in retired.items() if v != RETIRED_MODEL[k])
+    if used:
+        raise CheckpointError(
+            f"checkpoint {path} uses network options retired from se3push ({', '.join(used)}, "
+            "tried and not kept: docs/experiments); load it with the code of commit c7fec27"
+        )
+    stored = {k: v for k, v in stored.items() if k not in RETIRED_MODEL}
     known = {f.name for f in dataclasses.fields(ModelConfig)}
     unknown = sorted(set(stored) - known)
     if unknown:

@@ -38,37 +38,23 @@ def true_flow(b: dict[str, torch.Tensor], h: int) -> torch.Tensor | None:
     return None if flow is None else flow[:, h]
 
 
-LOSSES = ("moving", "split")
-"""how the point loss is normalised (``point_loss``)"""
-
-
 def point_loss(
     pred: torch.Tensor,
     target: torch.Tensor,
     target_valid: torch.Tensor,
     points: torch.Tensor,
     *,
-    loss: str = "moving",
     true_flow_m: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Training loss (cm^2), on the squared error of predicted vs target points over visible
-    targets.
-
-    ``moving``: summed over every visible target and divided by the number of points that
-    really move (at least 1), so that the few moving points are not drowned by the static
-    background; static points still weigh as much each as moving ones, so a net that cannot
-    tell them apart is paid to shrink every motion. ``split``: the mean over moving points
-    plus the mean over static ones, each normalised by its own count.
+    targets, summed over every visible target and divided by the number of points that really
+    move (at least 1), so that the few moving points are not drowned by the static background;
+    static points still weigh as much each as moving ones, so a net that cannot tell them
+    apart is paid to shrink every motion.
     """
     sq = ((pred - target) ** 2).sum(1) * target_valid
     moving = moving_points(points, target, target_valid, true_flow_m)
-    if loss == "moving":
-        return 1e4 * sq.sum() / moving.sum().clamp_min(1)
-    static = target_valid & ~moving
-    return 1e4 * (
-        (sq * moving).sum() / moving.sum().clamp_min(1)
-        + (sq * static).sum() / static.sum().clamp_min(1)
-    )
+    return 1e4 * sq.sum() / moving.sum().clamp_min(1)
 
 
 @dataclass

@@ -29,8 +29,6 @@ from scenarios import InputError
 from se3net.se3 import params_to_transform
 
 VARIANTS = ("se3net", "se3net-large", "no-penalty", "flow", "flow-large")
-CONTROL_ENTRIES = ("fused", "film")
-"""where the controls enter the network (``ModelConfig.controls``)"""
 FLOW_SCALE_M = 0.01
 """the flow decoder predicts flow in units of 1 cm"""
 
@@ -59,17 +57,6 @@ class ModelConfig:
     """the network sees every stride-th pixel of the camera's image in each direction
     (``se3net.data.subsample``): height and width are the camera's divided by it, a
     planning-resolution model (checkpoints from before it existed are stride 1)"""
-    controls: str = "fused"
-    """where the controls enter: ``fused``, the paper's, only where they join the cloud's code
-    at the bottleneck; ``film``, also scaling and shifting every decoder stage's features
-    (FiLM, from the fused code), so that a decoded pixel can be a product of what it sees and
-    the action, as a pixel's flow is ("which body" times "how it is pushed")"""
-    valid_channel: bool = False
-    """a fourth input channel that says which pixels hold a point (without it an empty pixel
-    reads as a point at the mean of the data)"""
-    full_res_head: bool = False
-    """end the decoder with a stage at the input's resolution that also sees the input cloud
-    (without it the last deconvolution's output is the prediction)"""
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
@@ -81,10 +68,6 @@ class ModelConfig:
             raise InputError("k, control_dim and stride must be positive")
         if self.pivot not in ("centroid", "origin"):
             raise InputError(f"pivot must be 'centroid' or 'origin', got {self.pivot!r}")
-        if self.controls not in CONTROL_ENTRIES:
-            raise InputError(
-                f"controls must be one of {', '.join(CONTROL_ENTRIES)}, got {self.controls!r}"
-            )
 
     @property
     def large(self) -> bool:
@@ -140,14 +123,13 @@ class _Backbone(nn.Module):
 
     SMALL = ((24, 5), (48, 3), (96, 3), (192, 3))
     LARGE = ((32, 9), (64, 7), (128, 5), (256, 3), (256, 3))
-    CODE, REDUCED, FULL_RES = 256, 32, 16
+    CODE, REDUCED = 256, 32
 
     def __init__(self, cfg: ModelConfig, out_channels: int):
         super().__init__()
         spec = self.LARGE if cfg.large else self.SMALL
         chans = [c for c, _ in spec]
-        c_x = 4 if cfg.valid_channel else 3
-        enc, c_in = [], c_x
+        enc, c_in = [], 3
         for c, k in spec:
             if cfg.large:
                 enc.append(_block(nn.Conv2d(c_in, c, k, padding=k // 2), c, pool=True))
@@ -171,36 +153,12 @@ class _Backbone(nn.Module):
             ups.append(nn.ConvTranspose2d(c_hi, c_lo, 4, stride=2, padding=1))
             post.append(nn.Sequential(nn.BatchNorm2d(c_lo), nn.PReLU(c_lo)))
         self.ups, self.post = nn.ModuleList(ups), nn.ModuleList(post)
-        # FiLM: per decoder stage, a scale and shift of its channels from the fused code,
-        # starting at the identity (no scale, no shift)
-        self.film = None
-        if cfg.controls == "film":
-            self.film = nn.ModuleList(nn.Linear(self.CODE, 2 * c) for c in chans[::-1])
-            for lin in self.film:
-                nn.init.zeros_(lin.weight)
-                nn.init.zeros_(lin.bias)
-        if cfg.full_res_head:
-            # the last deconvolution to a few channels at full resolution, then convolutions
-            # that see those beside the input
-            self.head = nn.Sequential(
-                nn.ConvTranspose2d(chans[0], self.FULL_RES, 4, stride=2, padding=1),
-                nn.BatchNorm2d(self.FULL_RES),
-                nn.PReLU(self.FULL_RES),
-            )
-            self.full_res = nn.Sequential(
-                nn.Conv2d(self.FULL_RES + c_x, self.FULL_RES, 3, padding=1),
-                nn.BatchNorm2d(self.FULL_RES),
-                nn.PReLU(self.FULL_RES),
-                nn.Conv2d(self.FULL_RES, out_channels, 1),
-            )
-        else:
-            self.head = nn.ConvTranspose2d(chans[0], out_channels, 4, stride=2, padding=1)
-            self.full_res = None
+        self.head = nn.ConvTranspose2d(chans[0], out_channels, 4, stride=2, padding=1)
 
     @property
     def out_layer(self) -> nn.Module:
         """The layer whose output is the prediction (a flow net starts it at zero)."""
-        return self.head if self.full_res is None else self.full_res[-1]
+        return self.head
 
     def encode(self, x: torch.Tensor) -> Encoding:
         """The cloud's half of the network: encoder features and the cloud code."""
@@ -219,23 +177,11 @@ class _Backbone(nn.Module):
         """(B,out,H,W) the decoder's output: deconvolutions from the code, skip-adding the
         encoder's features (batch 1 or B)."""
         feats = enc.feats
-        film = [None] * len(feats) if self.film is None else [f(code) for f in self.film]
         y = self.expand_fc(code).view(-1, self.REDUCED, self.s_h, self.s_w)
-        y = _modulate(self.expand_act(self.expand(y) + feats[-1]), film[0])
-        for up, post, skip, f in zip(self.ups, self.post, feats[-2::-1], film[1:], strict=True):
-            y = _modulate(post(up(y) + skip), f)
-        y = self.head(y)
-        if self.full_res is not None:
-            y = self.full_res(torch.cat([y, enc.x.expand(len(y), -1, -1, -1)], 1))
-        return y
-
-
-def _modulate(y: torch.Tensor, film: torch.Tensor | None) -> torch.Tensor:
-    """FiLM: ``y * (1 + scale) + shift`` per channel, ``film`` (B,2C) from the fused code."""
-    if film is None:
-        return y
-    scale, shift = film[:, :, None, None].chunk(2, dim=1)
-    return y * (1 + scale) + shift
+        y = self.expand_act(self.expand(y) + feats[-1])
+        for up, post, skip in zip(self.ups, self.post, feats[-2::-1], strict=True):
+            y = post(up(y) + skip)
+        return self.head(y)
 
 
 class _Normaliser(nn.Module):
@@ -318,11 +264,7 @@ class _CloudNet(nn.Module):
 
     def encode(self, points: torch.Tensor, valid: torch.Tensor) -> Encoding:
         """The cloud's part of a prediction, for :meth:`predict` (once for many controls)."""
-        x = self.norm.points(points, valid)
-        if self.cfg.valid_channel:
-            # a rollout feeds back B predicted clouds beside the one observed validity
-            x = torch.cat([x, valid[:, None].to(x).expand(len(x), -1, -1, -1)], 1)
-        return self.backbone.encode(x)
+        return self.backbone.encode(self.norm.points(points, valid))
 
 
 class SE3Net(_CloudNet):

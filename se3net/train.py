@@ -36,7 +36,7 @@ from se3net.checkpoint import manifest_hash, read_checkpoint, save_checkpoint
 from se3net.data import PushDataset, paper_noise
 from se3net.device import check_device
 from se3net.distributed import Ranks, broadcast, join, leave, mean_over_ranks, rank_device, shard
-from se3net.metrics import LOSSES, FlowStats, point_loss, true_flow
+from se3net.metrics import FlowStats, point_loss, true_flow
 from se3net.model import ModelConfig, build_model, sharpening
 from se3net.rollout import Reprojection, check_feedback, reprojection, rollout
 from sim.folders import exclusive
@@ -90,18 +90,9 @@ class TrainConfig:
     stride: int = 1
     """the network sees every stride-th pixel of the camera's image in each direction (2: a
     32x32 planning-resolution model of 64x64 data, about 4x fewer pixels a prediction)"""
-    loss: str = "moving"
-    """normalisation of the point loss (``se3net.metrics.LOSSES``): ``moving``, the sum over
-    visible points divided by the moving ones; ``split``, moving and static points' means"""
     noise: str = "none"
     """the paper's robustness noise on the training and validation data
     (a name of ``se3net.data.PAPER_NOISE``), fresh in each pass over the data"""
-    controls: str = "fused"
-    """where the controls enter the network (``ModelConfig.controls``)"""
-    valid_channel: bool = False
-    """an input channel of which pixels hold a point (``ModelConfig.valid_channel``)"""
-    full_res_head: bool = False
-    """a last decoder stage at full resolution (``ModelConfig.full_res_head``)"""
     feedback: str = "grid"
     """how a multi-step rollout feeds predicted clouds back (``se3net.rollout``): on the
     observed ``grid``, or ``rendered`` again by the camera as the planner does"""
@@ -126,25 +117,16 @@ class TrainConfig:
                 f"{self.later_from}, and there are {folders}: give more folders or a lower "
                 "--later-from"
             )
-        if self.loss not in LOSSES:
-            raise InputError(f"--loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
         paper_noise(self.noise)
         check_device(self.device)
         check_feedback(self.feedback)
 
-    def model_options(self) -> dict[str, Any]:
-        """The architecture settings this run passes to ``ModelConfig``."""
-        return {
-            "controls": self.controls,
-            "valid_channel": self.valid_channel,
-            "full_res_head": self.full_res_head,
-        }
 
-
-_LATER_SETTINGS = (
-    "stride", "loss", "noise", "controls", "valid_channel", "full_res_head", "later_from",
-    "feedback",
-)  # fmt: skip
+_LATER_SETTINGS = ("stride", "noise", "later_from", "feedback")
+RETIRED_SETTINGS = {"deflected_fraction": 0.0, "loss": "moving", "controls": "fused",
+                    "valid_channel": False, "full_res_head": False}  # fmt: skip
+"""options tried and not kept, with the value that means "not used": a run that did not use
+them resumes (one that did differs, and is refused, naming them)"""
 """settings added after runs were made: a run that has none ran at its default"""
 
 
@@ -154,7 +136,6 @@ def rollout_loss(
     steps: int,
     dt: float,
     *,
-    loss: str = "moving",
     reproject: Reprojection | None = None,
     **sharpen: Any,
 ) -> torch.Tensor:
@@ -171,7 +152,7 @@ def rollout_loss(
     total = 0.0
     for h, x in enumerate(clouds):
         total = total + point_loss(
-            x, b["target"][:, h], b["target_valid"][:, h], b["points"], loss=loss,
+            x, b["target"][:, h], b["target_valid"][:, h], b["points"],
             true_flow_m=true_flow(b, h),
         )  # fmt: skip
     return total / steps
@@ -187,17 +168,14 @@ class StepLoss(torch.nn.Module):
         model: torch.nn.Module,
         steps: int,
         dt: float,
-        loss: str,
         reproject: Reprojection | None = None,
     ) -> None:
         super().__init__()
-        self.model, self.steps, self.dt, self.loss = model, steps, dt, loss
+        self.model, self.steps, self.dt = model, steps, dt
         self.reproject = reproject
 
     def forward(self, b: dict[str, torch.Tensor], sharpen: dict[str, Any]) -> torch.Tensor:
-        return rollout_loss(
-            self.model, b, self.steps, self.dt, loss=self.loss, reproject=self.reproject, **sharpen
-        )
+        return rollout_loss(self.model, b, self.steps, self.dt, reproject=self.reproject, **sharpen)
 
 
 def _logged_by(line: str, iteration: int) -> bool:
@@ -236,7 +214,6 @@ def validate(
     batch: int,
     device: str,
     rollout_steps: int = 1,
-    loss: str = "moving",
     reproject: Reprojection | None = None,
 ) -> dict[str, float]:
     """Loss and flow MSE (one step) on fixed validation examples, and the rollout loss."""
@@ -247,10 +224,10 @@ def validate(
         b = {k: v.to(device) for k, v in ds.batch(indices[s : s + batch]).items()}
         pred = model(b["points"], b["u"][:, 0], b["valid"]).points
         loss_sum += float(
-            point_loss(pred, b["target"][:, 0], b["target_valid"][:, 0], b["points"], loss=loss,
+            point_loss(pred, b["target"][:, 0], b["target_valid"][:, 0], b["points"],
                        true_flow_m=true_flow(b, 0))
         ) * len(pred)  # fmt: skip
-        rolled = rollout_loss(model, b, rollout_steps, dt, loss=loss, reproject=reproject)
+        rolled = rollout_loss(model, b, rollout_steps, dt, reproject=reproject)
         rollout_sum += float(rolled) * len(pred)
         n += len(pred)
         stats.add(pred, b["points"], b["target"][:, 0], b["target_valid"][:, 0], true_flow(b, 0))
@@ -343,7 +320,6 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
         width=cam.width // cfg.stride,
         control_dim=len(ds.control_layout),
         stride=cfg.stride,
-        **cfg.model_options(),
     )
     model = build_model(mcfg).to(device)
     if cfg.init is not None:
@@ -361,8 +337,9 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
         defaults = {f.name: f.default for f in fields(TrainConfig)}
         for key in _LATER_SETTINGS:
             run_cfg.setdefault(key, defaults[key])
-        if run_cfg.get("deflected_fraction") == 0.0:  # a retired option the run did not use
-            del run_cfg["deflected_fraction"]
+        for key, unused in RETIRED_SETTINGS.items():  # options retired since, if not used
+            if key in run_cfg and run_cfg[key] == unused:
+                del run_cfg[key]
         if run_cfg != asdict(cfg):
             diffs = differences(run_cfg, asdict(cfg), old_has="the run has")
             raise InputError(
@@ -398,7 +375,7 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
     val_idx = np.linspace(0, len(val) - 1, min(cfg.val_examples, len(val))).round().astype(int)
     model.train()
     reproject = reprojection(cfg.feedback, cam, cfg.stride)
-    step_loss: torch.nn.Module = StepLoss(model, cfg.rollout_steps, dt, cfg.loss, reproject)
+    step_loss: torch.nn.Module = StepLoss(model, cfg.rollout_steps, dt, reproject)
     if ranks.world > 1:  # each step's gradients averaged over the processes' shards
         from torch.nn.parallel import DistributedDataParallel
 
@@ -423,7 +400,7 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
         # keeps the time)
         timeless = {k: v for k, v in figures.items() if k != "elapsed_s"}
         extra = {
-            "iteration": it, "data": [portable_path(d) for d in folders], "loss": cfg.loss,
+            "iteration": it, "data": [portable_path(d) for d in folders],
             **timeless,
         }  # fmt: skip
         save_checkpoint(
@@ -471,7 +448,7 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
                 "iteration": done,
                 "train_loss": train_loss,
                 **validate(
-                    model, val, val_idx, cfg.batch, device, cfg.rollout_steps, cfg.loss, reproject
+                    model, val, val_idx, cfg.batch, device, cfg.rollout_steps, reproject
                 ),  # fmt: skip
                 "sigma": sigma,
                 "gamma": gamma,

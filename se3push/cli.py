@@ -91,8 +91,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         eval_every=args.eval_every, keep_every=args.keep_every,
         rollout_steps=args.rollout_steps, init=args.init, later_fraction=args.later_fraction,
         later_from=args.later_from,
-        stride=args.stride, loss=args.loss, noise=args.noise,
-        controls=args.controls, valid_channel=args.valid_channel, full_res_head=args.full_res_head,
+        stride=args.stride, noise=args.noise,
         feedback=args.feedback,
     )  # fmt: skip
     ranks, code = ranks_from_env(), 0
@@ -333,23 +332,6 @@ def _parser() -> argparse.ArgumentParser:
         help="the network sees every N-th pixel of the camera's image in each direction "
         "(2: a 32x32 planning-resolution model of 64x64 data, about 3x faster to plan with)",
     )
-    s.add_argument(
-        "--loss", default="moving",
-        help="point loss: moving (sum over visible points / moving points, as before) or "
-        "split (mean over moving points + mean over static points)",
-    )  # fmt: skip
-    s.add_argument(
-        "--controls", default="fused",
-        help="where the controls enter: fused (the paper's bottleneck) or film (also FiLM "
-        "on every decoder stage)",
-    )  # fmt: skip
-    s.add_argument(
-        "--valid-channel", action="store_true", help="an input channel of which pixels hold a point"
-    )
-    s.add_argument(
-        "--full-res-head", action="store_true",
-        help="end the decoder with a stage at full resolution that sees the input cloud",
-    )  # fmt: skip
     noise_option(s, "train and validate under the paper's robustness noise (Table 2)")
     s.add_argument("--resume", action="store_true", help="continue the run in --out exactly")
     s.set_defaults(run=_cmd_train)

@@ -203,20 +203,18 @@ def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(
     assert plan["rollout"] == {"feedback": "grid", "contact_margin_m": None}
 
 
-def test_finetuning_keeps_the_starting_network_and_its_loss(tiny_data, tmp_path):
-    """A model with FiLM controls, a validity channel and the split loss is fine-tuned as
-    that network with that loss (the defaults would build another network, which init
-    refuses)."""
+def test_finetuning_keeps_the_starting_network(tiny_data, tmp_path):
+    """A model of other masks and another variant than the defaults is fine-tuned as that
+    network (the defaults would build another, which init refuses)."""
     start = tmp_path / "start"
     train(TrainConfig(data=str(tiny_data), out=str(start), iters=2, batch=4, eval_every=2,
-                      val_examples=8, k=3, controls="film", valid_channel=True, loss="split"),
-          progress=False)  # fmt: skip
+                      val_examples=8, k=5, variant="no-penalty"), progress=False)  # fmt: skip
     cfg = _cfg(tiny_data, str(start / "best.pt"), data=(str(tiny_data), str(tiny_data)))
     best = improve_mod.finetune(cfg, str(start / "best.pt"), list(cfg.data) * 2, tmp_path / "ft")
     blob = read_checkpoint(best)
-    assert blob["model"]["controls"] == "film" and blob["model"]["valid_channel"] is True
+    assert blob["model"]["k"] == 5 and blob["model"]["variant"] == "no-penalty"
     run = read_checkpoint(tmp_path / "ft" / "last.pt")["train_state"]["config"]
-    assert run["loss"] == "split" and run["init"] == str(start / "best.pt")
+    assert run["init"] == str(start / "best.pt")
 
 
 def test_each_planner_episode_counts_only_its_own_qp_failures(tiny_data, start_model, monkeypatch):

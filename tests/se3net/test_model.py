@@ -3,7 +3,6 @@ import dataclasses
 import pytest
 import torch
 
-from scenarios import InputError
 from se3net.model import (
     VARIANTS,
     ModelConfig,
@@ -105,25 +104,11 @@ def test_bad_configs_are_refused():
         ModelConfig(variant="se3net-large", height=48, width=48)
 
 
-STRONG = {"controls": "film", "valid_channel": True, "full_res_head": True}
-"""every option of the stronger flow net (and its fair share for the SE3-Net)"""
-
-
-@pytest.mark.parametrize("variant", ["se3net", "flow", "flow-large"])
-def test_the_stronger_options_start_by_predicting_no_motion(variant):
-    model = build_model(ModelConfig(variant=variant, height=64, width=64, **STRONG)).eval()
-    pts, valid = _cloud(3, 64, 64)
-    with torch.no_grad():
-        pred = model(pts, torch.randn(3, 4), valid)
-    torch.testing.assert_close(pred.points, pts, atol=1e-6, rtol=0)
-
-
 @pytest.mark.parametrize("variant", ["se3net", "flow"])
-def test_one_encoding_serves_a_batch_of_controls_with_every_option(variant):
-    # the planner encodes the observed cloud once for all its action sequences: with FiLM and
-    # the full-resolution head (which sees the input) that must stay exact
+def test_one_encoding_serves_a_batch_of_controls(variant):
+    # the planner encodes the observed cloud once for all its action sequences: exactly
     torch.manual_seed(0)
-    model = build_model(ModelConfig(variant=variant, height=32, width=32, **STRONG)).eval()
+    model = build_model(ModelConfig(variant=variant, height=32, width=32)).eval()
     for p in model.parameters():  # away from the identity start, so every path matters
         p.data.add_(0.05 * torch.randn_like(p))
     pts, valid = _cloud(1, 32, 32)
@@ -135,54 +120,6 @@ def test_one_encoding_serves_a_batch_of_controls_with_every_option(variant):
     assert (once[0] - once[1]).abs().max() > 1e-4  # the controls matter
 
 
-def test_film_starts_as_the_fused_network_and_then_modulates_the_decoder():
-    torch.manual_seed(0)
-    fused = build_model(ModelConfig(variant="flow", height=32, width=32)).eval()
-    fused.backbone.out_layer.weight.data.normal_(0, 0.1)  # not zero: the decoder's output shows
-    film = build_model(ModelConfig(variant="flow", height=32, width=32, controls="film")).eval()
-    missing, unexpected = film.load_state_dict(fused.state_dict(), strict=False)
-    assert not unexpected and missing and all(k.startswith("backbone.film.") for k in missing)
-    pts, valid = _cloud(2, 32, 32)
-    u = torch.randn(2, 4)
-    with torch.no_grad():
-        torch.testing.assert_close(film(pts, u, valid).points, fused(pts, u, valid).points)
-    # the FiLM layers get gradients (zero weights, but the features they modulate are not)
-    film.train()
-    film(pts, u, valid).points.square().sum().backward()
-    assert all(lin.weight.grad.abs().max() > 0 for lin in film.backbone.film)
-
-
-def test_the_validity_channel_tells_an_empty_pixel_from_a_point_at_the_mean():
-    torch.manual_seed(0)
-    pts, valid = _cloud(1, 32, 32)
-    for with_channel, differs in ((False, False), (True, True)):
-        model = build_model(
-            ModelConfig(variant="flow", height=32, width=32, valid_channel=with_channel)
-        ).eval()
-        for p in model.parameters():
-            p.data.add_(0.05 * torch.randn_like(p))
-        mean = torch.tensor([0.01, -0.02, 0.9])
-        model.norm.points_mean.copy_(mean)
-        # pixel (3, 4) is either empty, or a point exactly at the data's mean
-        empty_valid = valid.clone()
-        empty_valid[0, 3, 4] = False
-        at_mean, at_mean_valid = pts.clone(), valid.clone()
-        at_mean[0, :, 3, 4], at_mean_valid[0, 3, 4] = mean, True
-
-        def decoded(x, v, model=model):  # the decoder's output (the prediction keeps empty pixels)
-            enc = model.encode(x, v)
-            return model.backbone.decode(model.backbone.code(enc, torch.zeros(1, 4)), enc)
-
-        with torch.no_grad():
-            a, b = decoded(pts, empty_valid), decoded(at_mean, at_mean_valid)
-        assert bool((a - b).abs().max() > 1e-6) == differs
-
-
-def test_unknown_control_entries_are_refused():
-    with pytest.raises(InputError, match="controls must be one of fused, film"):
-        ModelConfig(controls="tiled")
-
-
 @pytest.mark.parametrize("variant", ["se3net", "flow"])
 def test_a_rollout_from_one_observed_cloud_is_that_of_the_cloud_repeated(variant):
     # the planner's rollout: one observed cloud and its validity, B action sequences, the
@@ -190,7 +127,7 @@ def test_a_rollout_from_one_observed_cloud_is_that_of_the_cloud_repeated(variant
     from se3net.rollout import rollout
 
     torch.manual_seed(0)
-    model = build_model(ModelConfig(variant=variant, height=32, width=32, **STRONG)).eval()
+    model = build_model(ModelConfig(variant=variant, height=32, width=32)).eval()
     for p in model.parameters():
         p.data.add_(0.05 * torch.randn_like(p))
     pts, valid = _cloud(1, 32, 32)
@@ -203,3 +140,16 @@ def test_a_rollout_from_one_observed_cloud_is_that_of_the_cloud_repeated(variant
         )  # fmt: skip
     for a, b in zip(once, each, strict=True):
         torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
+
+
+def test_a_checkpoint_of_retired_options_loads_only_where_it_did_not_use_them(tmp_path):
+    """FiLM controls, a validity channel and a full-resolution head were tried and not kept: a
+    checkpoint that stored them unused loads; one that used them is refused, naming them and
+    the commit that can load it."""
+    from se3net.checkpoint import CheckpointError, _config_of
+
+    stored = {"variant": "flow", "k": 4, "height": 32, "width": 32, "control_dim": 4}
+    unused = {"controls": "fused", "valid_channel": False, "full_res_head": False}
+    assert _config_of({"model": {**stored, **unused}}, "x.pt") == ModelConfig(**stored)
+    with pytest.raises(CheckpointError, match=r"controls=film.*commit c7fec27"):
+        _config_of({"model": {**stored, **unused, "controls": "film"}}, "x.pt")

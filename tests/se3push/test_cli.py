@@ -209,8 +209,6 @@ def test_train_and_eval_bad_input_is_exit_code_2(tiny_data, tmp_path, capsys):
         ),
         (["train", "--later-fraction", "0.5"], "after the first 1, and there are 1: give more"),
         (["train", "--noise", "loud"], "--noise must be one of none, depth-scaled, depth, assoc-9"),
-        (["train", "--loss", "l1"], "--loss must be one of moving, split"),
-        (["train", "--controls", "tiled"], "controls must be one of fused, film"),
         (["improve", "--model", "default"], "does not fit scenario 'tiny'"),
     ],
 )
