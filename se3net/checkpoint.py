@@ -145,9 +145,11 @@ def refuse_trained_on(
             )
 
 
-RETIRED_MODEL = {"controls": "fused", "valid_channel": False, "full_res_head": False}
+RETIRED_MODEL = {"controls": "fused", "valid_channel": False, "full_res_head": False,
+                 "pivot": "centroid"}  # fmt: skip
 """network options tried and not kept (FiLM controls, a validity channel, a full-resolution
-head), with the value that means "not used": a checkpoint that stored them unused loads"""
+head, rotations about the camera origin), with the value of today's network: a checkpoint that
+stored them so loads"""
 
 
 def model_config(path: str | Path) -> ModelConfig:

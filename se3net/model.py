@@ -8,9 +8,10 @@ identity; the transform layer blends them with the masks (paper, Eq. 3):
 
     y_j = sum_i m_ij (R_i (x_j - c_i) + c_i + t_i)
 
-with pivots ``c_i`` the mask-weighted centroid of the input points (``pivot="centroid"``), or
-``c_i = 0`` as in the paper (``pivot="origin"``); both span the same motions, but about the
-centroid the translation is the mask's own motion, which trains better (see REFERENCE.md).
+with pivots ``c_i`` the mask-weighted centroid of the input points. The paper pivots about
+the camera origin (``c_i = 0``); both span the same motions, but about the centroid the
+translation is the mask's own motion, which trains better (see REFERENCE.md); the origin was
+tried and not kept (commit c7fec27 has it).
 
 Weight sharpening (paper, Eq. 2): ``m' = normalise((m + eps)^gamma)``, ``eps ~ N(0, sigma^2)``,
 with sigma and gamma ramped over training (``sharpening``); at evaluation the last gamma is
@@ -51,8 +52,6 @@ class ModelConfig:
     """largest SD of the sharpening noise"""
     gamma_max: float = 30.0
     """largest sharpening exponent"""
-    pivot: str = "centroid"
-    """rotate each mask about its centroid ("centroid") or the camera origin ("origin")"""
     stride: int = 1
     """the network sees every stride-th pixel of the camera's image in each direction
     (``se3net.data.subsample``): height and width are the camera's divided by it, a
@@ -66,8 +65,6 @@ class ModelConfig:
             raise InputError(f"{self.variant} needs height and width divisible by {div}")
         if self.k < 1 or self.control_dim < 1 or self.stride < 1:
             raise InputError("k, control_dim and stride must be positive")
-        if self.pivot not in ("centroid", "origin"):
-            raise InputError(f"pivot must be 'centroid' or 'origin', got {self.pivot!r}")
 
     @property
     def large(self) -> bool:
@@ -221,16 +218,13 @@ def transform_layer(
     valid: torch.Tensor,
     masks: torch.Tensor,
     T: torch.Tensor,
-    *,
-    centroid: bool,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Blend k rigid motions with the masks (paper, Eq. 3).
 
     Args:
         points: (B,3,H,W) input cloud; valid: (B,H,W) bool; masks: (B,k,H,W), summing to 1
-            over k; T: (B,k,3,4) transforms about the pivots.
-        centroid: pivot each mask's rotation about its mask-weighted centroid (else the
-            camera origin, as in the paper).
+            over k; T: (B,k,3,4) transforms about the pivots, each mask's mask-weighted
+            centroid.
 
     Returns:
         (B,3,H,W) ``y_j = sum_i m_ij (R_i (x_j - c_i) + c_i + t_i)`` (invalid pixels keep
@@ -238,11 +232,8 @@ def transform_layer(
     """
     B, k = masks.shape[:2]
     x, m = points.flatten(2), masks.flatten(2)  # (B,3,N), (B,k,N)
-    if centroid:
-        mv = m * valid.flatten(1)[:, None]
-        pivots = (x @ mv.transpose(1, 2)).transpose(1, 2) / mv.sum(-1, keepdim=True).clamp_min(1e-6)
-    else:
-        pivots = points.new_zeros(B, k, 3)
+    mv = m * valid.flatten(1)[:, None]
+    pivots = (x @ mv.transpose(1, 2)).transpose(1, 2) / mv.sum(-1, keepdim=True).clamp_min(1e-6)
     R = T[..., :3]
     offset = pivots - (R @ pivots[..., None])[..., 0] + T[..., 3]  # (B,k,3)
     # each point's blended affine map sum_i m_ij [R_i | offset_i], then applied: a (12 x k)
@@ -306,7 +297,7 @@ class SE3Net(_CloudNet):
         B, k = masks.shape[:2]
         T = params_to_transform(self.se3_head(code).view(B, k, 6))  # (B,k,3,4)
         points, valid = points.expand(B, -1, -1, -1), valid.expand(B, -1, -1)
-        y, pivots = transform_layer(points, valid, masks, T, centroid=self.cfg.pivot == "centroid")
+        y, pivots = transform_layer(points, valid, masks, T)
         return Prediction(y, masks, T, pivots)
 
     def forward(

@@ -182,7 +182,7 @@ def replan_breakdown(
             "mask decoder": (H, lambda: bb.decode(code, enc1)),
             "SE(3) head": (H, lambda: params_to_transform(
                 net.se3_head(bb.code(enc1, net.norm.controls(u))).view(K, -1, 6))),
-            "transform layer": (H, lambda: transform_layer(xK, validK, masks, T, centroid=True)),
+            "transform layer": (H, lambda: transform_layer(xK, validK, masks, T)),
             "pose fit": (H, lambda: planar_fit(src, dst, src.mean(0))),
             "cost": (1, lambda: cost.cost(state, rollout, U, last_action=torch.zeros(2))),
             FRONT: (1, lambda: front.cost(state, rollout, U, last_action=torch.zeros(2))),
