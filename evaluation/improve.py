@@ -76,8 +76,6 @@ class ImproveConfig:
     action_noise: float = 0.1
     """SD of the noise on executed actions while collecting, as a fraction of the bound"""
     finetune_iters: int = 1000
-    rollout_steps: int = 1
-    """rollout steps of the fine-tuning loss (``se3push train --rollout-steps``)"""
     lr: float = 3e-4
     visited_fraction: float = 0.5
     """share of each fine-tuning batch drawn from the planner-visited data: the rounds add a
@@ -243,7 +241,7 @@ def finetune(cfg: ImproveConfig, init: str, data: list[str], out: Path) -> str:
         data=tuple(data), out=str(out), variant=net.variant, k=net.k, stride=net.stride,
         iters=cfg.finetune_iters, batch=cfg.batch,
         lr=cfg.lr, seed=cfg.seed, eval_every=min(cfg.eval_every, cfg.finetune_iters),
-        rollout_steps=cfg.rollout_steps, init=init, later_fraction=cfg.visited_fraction,
+        init=init, later_fraction=cfg.visited_fraction,
         later_from=len(cfg.data),
     )  # fmt: skip
     train(tcfg, resume=(out / "last.pt").exists())

@@ -36,9 +36,10 @@ they recorded the horizon); no disturbance term, the shaping term faded wherever
 was, no keep-out term, neither faded near the goal; predicted clouds fed back on the grid,
 every predicted motion counted"""
 
-RETIRED = {"motion_gain": "off", "w_edge": 0.0}
+RETIRED = {"motion_gain": "off", "w_edge": 0.0, "rollout_steps": 1}
 """options removed from the package, with the value that means "not used" (a gain fitted to
-the push's own steps; a term keeping the object off the table's edge: docs/experiments)"""
+the push's own steps; a term keeping the object off the table's edge; improve's multi-step
+fine-tuning: docs/experiments)"""
 
 FLAT = {
     "horizon": ("optimiser", "horizon"),
@@ -92,6 +93,9 @@ def migrate_config(meta: dict[str, Any]) -> dict[str, Any]:
     edge = plan["cost"].pop("w_edge", RETIRED["w_edge"])
     if edge != RETIRED["w_edge"]:
         retired["w_edge"] = edge
+    steps = old.pop("rollout_steps", RETIRED["rollout_steps"])
+    if steps != RETIRED["rollout_steps"]:
+        retired["rollout_steps"] = steps
     if "n" in old and "scenario" in old and "models" not in old:  # a trial set
         old.setdefault("tolerance", list(TIGHT))  # trials ran to 2 cm, 10 deg before
     return {"schema": SCHEMA, **old, "plan": plan, "retired": retired}

@@ -5,11 +5,10 @@ A run folder holds ``last.pt`` (with optimiser and random states, to resume exac
 per evaluation: train and validation loss, flow MSE and its ratio to no-motion) and, with
 ``keep_every``, ``iter_NNNNNN.pt`` snapshots for studies.
 
-With ``rollout_steps`` N > 1 the loss is taken on N-step rollouts in which each predicted
-cloud is fed back as the next input, exactly as the planner rolls the model (the pusher
-position in the controls integrated from the commanded velocities, not read from the data),
-averaged over the N steps; the best checkpoint is then the one with the lowest validation
-rollout loss. ``init`` starts from a checkpoint's weights (fine-tuning a one-step model).
+The loss is taken through the planner's rollout (``se3net.rollout``) over one step, the
+pusher position in the controls integrated from the commanded velocities, as the planner rolls
+the model (multi-step training was tried and not kept: docs/experiments). ``init`` starts from
+a checkpoint's weights (fine-tuning).
 
 Under ``torchrun`` the run is data-parallel (``se3net.distributed``): every process draws the
 same batch and trains on its shard of it in a DistributedDataParallel step; rank 0 alone
@@ -38,7 +37,7 @@ from se3net.device import check_device
 from se3net.distributed import Ranks, broadcast, join, leave, mean_over_ranks, rank_device, shard
 from se3net.metrics import FlowStats, point_loss, true_flow
 from se3net.model import ModelConfig, build_model, sharpening
-from se3net.rollout import Reprojection, check_feedback, reprojection, rollout
+from se3net.rollout import rollout
 from sim.folders import exclusive
 from sim.shards import DataError, append_text, atomic_write_bytes, portable_path
 
@@ -77,8 +76,6 @@ class TrainConfig:
     """validation examples (a fixed, evenly spaced subset)"""
     keep_every: int = 0
     """also keep a checkpoint every N iterations (0: never)"""
-    rollout_steps: int = 1
-    """steps of each training rollout, predictions fed back (1: the paper's one-step loss)"""
     init: str | None = None
     """checkpoint whose weights (and normalisation) the run starts from"""
     later_fraction: float = 0.0
@@ -93,13 +90,10 @@ class TrainConfig:
     noise: str = "none"
     """the paper's robustness noise on the training and validation data
     (a name of ``se3net.data.PAPER_NOISE``), fresh in each pass over the data"""
-    feedback: str = "grid"
-    """how a multi-step rollout feeds predicted clouds back (``se3net.rollout``): on the
-    observed ``grid``, or ``rendered`` again by the camera as the planner does"""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
-        for name in ("iters", "batch", "eval_every", "val_examples", "rollout_steps", "stride"):
+        for name in ("iters", "batch", "eval_every", "val_examples", "stride"):
             if getattr(self, name) < 1:
                 raise InputError(
                     f"--{name.replace('_', '-')} must be positive, got {getattr(self, name)}"
@@ -119,43 +113,26 @@ class TrainConfig:
             )
         paper_noise(self.noise)
         check_device(self.device)
-        check_feedback(self.feedback)
 
 
-_LATER_SETTINGS = ("stride", "noise", "later_from", "feedback")
+_LATER_SETTINGS = ("stride", "noise", "later_from")
 RETIRED_SETTINGS = {"deflected_fraction": 0.0, "loss": "moving", "controls": "fused",
-                    "valid_channel": False, "full_res_head": False}  # fmt: skip
+                    "valid_channel": False, "full_res_head": False, "rollout_steps": 1,
+                    "feedback": "grid"}  # fmt: skip
 """options tried and not kept, with the value that means "not used": a run that did not use
 them resumes (one that did differs, and is refused, naming them)"""
 """settings added after runs were made: a run that has none ran at its default"""
 
 
 def rollout_loss(
-    model: torch.nn.Module,
-    b: dict[str, torch.Tensor],
-    steps: int,
-    dt: float,
-    *,
-    reproject: Reprojection | None = None,
-    **sharpen: Any,
+    model: torch.nn.Module, b: dict[str, torch.Tensor], dt: float, **sharpen: Any
 ) -> torch.Tensor:
-    """Mean point loss over an N-step rollout (``se3net.rollout``: the planner's), each
-    prediction fed back as the next input.
-
-    Every step's targets are where the *observed* points end up (the associations are those
-    of the first frame), so the loss follows the same points the planner's pose fit follows.
-    """
-    actions = b["actions"][:, :steps]
-    clouds = rollout(
-        model, b["points"], b["valid"], actions, b["state"], dt, reproject=reproject, **sharpen
-    )
-    total = 0.0
-    for h, x in enumerate(clouds):
-        total = total + point_loss(
-            x, b["target"][:, h], b["target_valid"][:, h], b["points"],
-            true_flow_m=true_flow(b, h),
-        )  # fmt: skip
-    return total / steps
+    """The point loss of one step through the planner's rollout (``se3net.rollout``): the
+    pusher position in the controls integrated from the commands, as the planner does."""
+    (cloud,) = rollout(model, b["points"], b["valid"], b["actions"][:, :1], b["state"], dt,
+                       **sharpen)  # fmt: skip
+    return point_loss(cloud, b["target"][:, 0], b["target_valid"][:, 0], b["points"],
+                      true_flow_m=true_flow(b, 0))  # fmt: skip
 
 
 class StepLoss(torch.nn.Module):
@@ -163,19 +140,12 @@ class StepLoss(torch.nn.Module):
     synchronises gradients through a module's forward, and the rollout calls the network's
     parts (encode, predict) rather than its forward, so the whole loss is what it wraps."""
 
-    def __init__(
-        self,
-        model: torch.nn.Module,
-        steps: int,
-        dt: float,
-        reproject: Reprojection | None = None,
-    ) -> None:
+    def __init__(self, model: torch.nn.Module, dt: float) -> None:
         super().__init__()
-        self.model, self.steps, self.dt = model, steps, dt
-        self.reproject = reproject
+        self.model, self.dt = model, dt
 
     def forward(self, b: dict[str, torch.Tensor], sharpen: dict[str, Any]) -> torch.Tensor:
-        return rollout_loss(self.model, b, self.steps, self.dt, reproject=self.reproject, **sharpen)
+        return rollout_loss(self.model, b, self.dt, **sharpen)
 
 
 def _logged_by(line: str, iteration: int) -> bool:
@@ -213,8 +183,6 @@ def validate(
     indices: np.ndarray,
     batch: int,
     device: str,
-    rollout_steps: int = 1,
-    reproject: Reprojection | None = None,
 ) -> dict[str, float]:
     """Loss and flow MSE (one step) on fixed validation examples, and the rollout loss."""
     model.eval()
@@ -227,7 +195,7 @@ def validate(
             point_loss(pred, b["target"][:, 0], b["target_valid"][:, 0], b["points"],
                        true_flow_m=true_flow(b, 0))
         ) * len(pred)  # fmt: skip
-        rolled = rollout_loss(model, b, rollout_steps, dt, reproject=reproject)
+        rolled = rollout_loss(model, b, dt)
         rollout_sum += float(rolled) * len(pred)
         n += len(pred)
         stats.add(pred, b["points"], b["target"][:, 0], b["target_valid"][:, 0], true_flow(b, 0))
@@ -305,7 +273,7 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
     device = rank_device(cfg.device, ranks)
     torch.manual_seed(cfg.seed)
     data = {
-        "horizon": cfg.rollout_steps, "stride": cfg.stride, "noise": paper_noise(cfg.noise),
+        "horizon": 1, "stride": cfg.stride, "noise": paper_noise(cfg.noise),
         "seed": cfg.seed, "device": device,
     }  # fmt: skip
     ds = PushDataset(cfg.data, split="train", **data)
@@ -374,8 +342,7 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
             (out / "metrics.jsonl").write_text("")
     val_idx = np.linspace(0, len(val) - 1, min(cfg.val_examples, len(val))).round().astype(int)
     model.train()
-    reproject = reprojection(cfg.feedback, cam, cfg.stride)
-    step_loss: torch.nn.Module = StepLoss(model, cfg.rollout_steps, dt, reproject)
+    step_loss: torch.nn.Module = StepLoss(model, dt)
     if ranks.world > 1:  # each step's gradients averaged over the processes' shards
         from torch.nn.parallel import DistributedDataParallel
 
@@ -447,9 +414,7 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
             figures = {
                 "iteration": done,
                 "train_loss": train_loss,
-                **validate(
-                    model, val, val_idx, cfg.batch, device, cfg.rollout_steps, reproject
-                ),  # fmt: skip
+                **validate(model, val, val_idx, cfg.batch, device),  # fmt: skip
                 "sigma": sigma,
                 "gamma": gamma,
                 "lr": learning_rate(cfg, it),
@@ -457,7 +422,7 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
                 "examples": done * cfg.batch,
             }
             append_text(out / "metrics.jsonl", json.dumps(figures) + "\n")
-            score = figures["val_rollout_loss" if cfg.rollout_steps > 1 else "val_flow_mse_cm2"]
+            score = figures["val_flow_mse_cm2"]
             if score < best:
                 best = score
                 checkpoint(out / "best.pt", done, figures, with_state=False)

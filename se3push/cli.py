@@ -89,10 +89,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
         data=data, out=args.out, variant=args.variant, iters=args.iters, batch=args.batch,
         lr=args.lr, seed=args.seed, device=args.device, k=args.k,
         eval_every=args.eval_every, keep_every=args.keep_every,
-        rollout_steps=args.rollout_steps, init=args.init, later_fraction=args.later_fraction,
-        later_from=args.later_from,
+        init=args.init, later_fraction=args.later_fraction, later_from=args.later_from,
         stride=args.stride, noise=args.noise,
-        feedback=args.feedback,
     )  # fmt: skip
     ranks, code = ranks_from_env(), 0
     try:
@@ -204,7 +202,7 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         measure_only=tuple(args.measure_only), rounds=args.rounds,
         trials_per_round=args.trials_per_round, heldout=args.heldout, seed=args.seed,
         action_noise=args.action_noise, finetune_iters=args.finetune_iters,
-        rollout_steps=args.rollout_steps, lr=args.lr, max_steps=args.max_steps,
+        lr=args.lr, max_steps=args.max_steps,
         visited_fraction=args.visited_fraction, plan=plan_settings(args),
     )  # fmt: skip
     run_improve(cfg, args.out, workers=args.workers, **backend(args))
@@ -304,13 +302,6 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--k", type=int, default=4, help="number of masks (SE3-Net variants)")
     s.add_argument("--eval-every", type=int, default=250, help="iterations between validations")
     s.add_argument("--keep-every", type=int, default=0, help="keep a checkpoint every N iterations")
-    s.add_argument(
-        "--rollout-steps",
-        type=int,
-        default=1,
-        help="train on N-step rollouts with predictions fed back, as the planner rolls the model",
-    )
-    feedback_option(s, "the predictions of a multi-step training rollout")
     s.add_argument("--init", default=None, help="start from this checkpoint's weights (fine-tune)")
     s.add_argument(
         "--later-fraction",
@@ -418,7 +409,6 @@ def _parser() -> argparse.ArgumentParser:
         help="SD of the noise on executed actions while collecting (x bound)",
     )
     s.add_argument("--finetune-iters", type=int, default=1000)
-    s.add_argument("--rollout-steps", type=int, default=1, help="rollout steps of the loss")
     s.add_argument("--lr", type=float, default=3e-4)
     s.add_argument(
         "--visited-fraction",

@@ -42,8 +42,8 @@ def test_the_controls_of_arm_data_are_the_recorded_joint_velocities(arm_data):
     assert torch.equal(pusher_controls(b["actions"], b["state"], 0.15), b["actions"])
 
 
-def test_a_training_rollout_feeds_the_recorded_joint_velocities_at_every_step(arm_data):
-    ds = PushDataset(arm_data, split="train", horizon=3)
+def test_the_training_step_feeds_the_recorded_joint_velocities(arm_data):
+    ds = PushDataset(arm_data, split="train", horizon=1)
     b = ds.batch([0, 5])
     seen = []
 
@@ -55,15 +55,15 @@ def test_a_training_rollout_feeds_the_recorded_joint_velocities_at_every_step(ar
             seen.append(u.clone())
             return SimpleNamespace(points=x, masks=None)
 
-    train_mod.rollout_loss(Spy(), b, 3, ds.scenario.action.dt_control_s)
-    assert len(seen) == 3
+    train_mod.rollout_loss(Spy(), b, ds.scenario.action.dt_control_s)
+    assert len(seen) == 1
     for h, u in enumerate(seen):
         assert torch.equal(u, b["u"][:, h])
 
 
 def test_train_and_eval_on_arm_data_with_five_masks(arm_data, tmp_path):
     cfg = TrainConfig(data=str(arm_data), out=str(tmp_path / "run"), iters=4, batch=4,
-                      eval_every=2, val_examples=8, k=5, stride=2, rollout_steps=2)  # fmt: skip
+                      eval_every=2, val_examples=8, k=5, stride=2)  # fmt: skip
     figures = train(cfg, progress=False)
     assert np.isfinite(figures["val_flow_mse_cm2"]) and figures["val_no_motion_cm2"] > 0
     blob = read_checkpoint(tmp_path / "run" / "best.pt")

@@ -172,71 +172,6 @@ def test_eval_writes_the_table_json_and_pictures(tiny_data, tmp_path):
     assert (tmp_path / "eval" / "se3_examples.png").read_bytes()[:4] == b"\x89PNG"
 
 
-@pytest.mark.parametrize("feedback", ["grid", "rendered"])
-def test_rollout_training_follows_the_planner_and_lowers_the_rollout_loss(
-    tiny_data, tmp_path, feedback
-):
-    from planner.dynamics import LearnedDynamics, PlanState
-    from se3net.rollout import reprojection
-    from se3net.train import rollout_loss
-
-    torch.manual_seed(0)
-    ds = PushDataset(tiny_data, split="train", horizon=3)
-    dt = ds.scenario.action.dt_control_s
-    model = build_model(ModelConfig(height=32, width=32, k=3))
-    fit_normalisation(model, ds, np.random.default_rng(0), n=64)
-    moving = [
-        i
-        for i in range(len(ds))
-        if (ds[i]["target"][-1] - ds[i]["points"]).norm(dim=0)[ds[i]["part"] >= 2].max() > 2e-3
-    ]
-    b = ds.batch(moving[:4] + list(range(4)))
-    # the training rollout is the planner's rollout: same clouds, step by step (on the grid)
-    model.eval()
-    dyn = LearnedDynamics(model, ds.scenario, name="se3net", feedback="grid")
-    state = PlanState(b["points"][0], b["valid"][0], b["part"][0] == 2, torch.zeros(3),
-                      b["u"][0, 0, 2:], torch.from_numpy(ds.camera.T_world_cam).float(),
-                      footprint_radius_m=0.05, yaw_period_rad=None)  # fmt: skip
-    planned = dyn.rollout(state, b["u"][:1, :, :2], clouds=True).clouds[0]
-    x = b["points"][:1]
-    from se3net.rollout import pusher_controls
-
-    u = pusher_controls(b["u"][:1, :, :2], b["u"][:1, 0, 2:], dt)
-    for h in range(3):
-        x = model(x, u[:, h], b["valid"][:1]).points
-        assert torch.allclose(x[0], planned[h], atol=1e-6)
-    model.train()
-    # Transforms start as the identity, where the masks' gradients are pure rounding noise
-    # that Adam scales up to full steps: start from small transforms, so that whether the
-    # loss falls depends on the rollout's gradients and not on the order of float sums.
-    with torch.no_grad():
-        model.se3_head[-1].weight.normal_(0, 0.001, generator=torch.Generator().manual_seed(0))
-    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
-    reproject = reprojection(feedback, ds.scenario.camera, 1)
-    first = float(rollout_loss(model, b, 3, dt, reproject=reproject).detach())
-    for _ in range(200):
-        opt.zero_grad()
-        rollout_loss(model, b, 3, dt, reproject=reproject).backward()
-        opt.step()
-    assert float(rollout_loss(model, b, 3, dt, reproject=reproject).detach()) < 0.5 * first
-
-
-def test_fine_tuning_with_rollouts_starts_from_the_checkpoint(tiny_data, tmp_path):
-    train(_cfg(tiny_data, tmp_path / "one", iters=4), progress=False)
-    init = str(tmp_path / "one" / "last.pt")
-    figures = train(_cfg(tiny_data, tmp_path / "multi", iters=2, rollout_steps=3, init=init),
-                    progress=False)  # fmt: skip
-    assert figures["val_rollout_loss"] > 0
-    # with a zero learning rate the weights (not BN's running statistics) stay those of --init
-    train(_cfg(tiny_data, tmp_path / "frozen", iters=1, lr=1e-12, rollout_steps=2, init=init),
-          progress=False)  # fmt: skip
-    a, b = read_checkpoint(init)["state_dict"], read_checkpoint(tmp_path / "frozen" / "last.pt")
-    assert all(torch.allclose(a[k].float(), b["state_dict"][k].float(), atol=1e-6) for k in a
-               if "running_" not in k and not k.endswith("num_batches_tracked"))  # fmt: skip
-    with pytest.raises(CheckpointError, match="another network"):
-        train(_cfg(tiny_data, tmp_path / "bad", iters=1, k=4, init=init), progress=False)
-
-
 def test_later_fraction_draws_that_share_of_each_batch_from_the_later_folders(tiny_data, tmp_path):
     from se3net.train import draw_batch
 
@@ -278,8 +213,9 @@ def test_later_from_keeps_several_exploration_folders_out_of_the_later_share(tin
 
 
 def test_runs_have_no_horizon_setting_and_old_runs_with_the_inert_one_resume(tiny_data, tmp_path):
-    """The loss's horizon is ``rollout_steps``; old runs stored a ``horizon`` that at 1 changed
-    nothing, so they resume; any other value is refused."""
+    """Old runs stored a ``horizon`` that at 1 changed nothing, so they resume; any other value
+    is refused. So with the retired multi-step training: a run that stored ``rollout_steps``
+    1 (and the grid feedback) resumes, one of 3 steps is refused."""
     cfg = _cfg(tiny_data, tmp_path, iters=4)
     train(cfg, progress=False)
     last = tmp_path / "last.pt"
@@ -293,6 +229,14 @@ def test_runs_have_no_horizon_setting_and_old_runs_with_the_inert_one_resume(tin
     blob["train_state"]["config"]["horizon"] = 3
     torch.save(blob, last)
     with pytest.raises(InputError, match="other settings than the run's .*horizon: the run has 3"):
+        train(cfg, resume=True, progress=False)
+    del blob["train_state"]["config"]["horizon"]
+    blob["train_state"]["config"] |= {"rollout_steps": 1, "feedback": "grid"}
+    torch.save(blob, last)
+    train(cfg, resume=True, progress=False)
+    blob["train_state"]["config"]["rollout_steps"] = 3
+    torch.save(blob, last)
+    with pytest.raises(InputError, match="rollout_steps: the run has 3"):
         train(cfg, resume=True, progress=False)
 
 
@@ -378,7 +322,7 @@ def test_the_split_loss_does_not_grow_with_the_static_background_the_moving_one_
 
 
 def test_runs_record_their_noise_and_options_and_resume_only_with_them(tiny_data, tmp_path):
-    opts = dict(noise="assoc-9", variant="flow", feedback="rendered")
+    opts = dict(noise="assoc-9", variant="flow")
     train(_cfg(tiny_data, tmp_path / "r", **opts), progress=False)
     blob = read_checkpoint(tmp_path / "r" / "last.pt")
     assert {k: blob["train_state"]["config"][k] for k in opts} == opts

@@ -197,7 +197,6 @@ def test_train_and_eval_bad_input_is_exit_code_2(tiny_data, tmp_path, capsys):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["train", "--rollout-steps", "0"], "--rollout-steps must be positive"),
         (["train", "--init", "nowhere.pt"], "nowhere.pt does not exist"),
         (["study", "--models", "a=x.pt", "a=y.pt"], "share a label"),
         (["study", "--models", "oracle", "--trials", "0"], "must be positive"),
@@ -223,13 +222,12 @@ def test_study_improve_and_rollout_bad_input_is_exit_code_2(
     assert not (tmp_path / "i").exists()  # improve refuses before writing anything
 
 
-@pytest.mark.parametrize("command", ["trials", "plan-push", "train", "eval"])
+@pytest.mark.parametrize("command", ["trials", "plan-push", "eval"])
 def test_an_unknown_feedback_is_exit_code_2_naming_the_known_ones(
     command, tiny_data, tmp_path, capsys
 ):
     args = {
         "trials": ["trials", "--scenario", "single_box", "--n", "1", "--out", str(tmp_path / "t")],
-        "train": ["train", "--data", str(tiny_data), "--out", str(tmp_path / "r")],
         "eval": ["eval", "--data", str(tiny_data), "--checkpoints", "default",
                  "--out", str(tmp_path / "e")],
     }.get(command, [])  # fmt: skip
