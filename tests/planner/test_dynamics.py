@@ -6,14 +6,8 @@ import pytest
 import torch
 
 from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
-from planner.dynamics import (
-    EnsembleDynamics,
-    LearnedDynamics,
-    NoMotionDynamics,
-    contact_gate,
-    integrate_pusher,
-    planar_fit,
-)
+from planner.dynamics import NoMotionDynamics, integrate_pusher, planar_fit
+from planner.learned import EnsembleDynamics, LearnedDynamics, contact_gate
 from scenarios import load_scenario
 from se3net.checkpoint import CheckpointError
 from se3net.model import ModelConfig, build_model
@@ -370,7 +364,7 @@ def test_skipping_the_network_out_of_reach_gives_the_full_rollout_to_within_a_mi
     """Candidates whose pusher stays out of reach of the box skip the network; the rollout is
     the full one (every candidate through the network) to the gate's leak, here below 1 um;
     candidates that reach the box go through the network as before, exactly."""
-    from planner.dynamics import SKIP_BEYOND_M
+    from planner.learned import SKIP_BEYOND_M
 
     scenario = load_scenario("single_box")
     world = PushWorld(scenario)

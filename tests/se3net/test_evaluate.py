@@ -54,7 +54,8 @@ def test_evaluations_fed_back_rows_are_the_planners_rollout(work, tiny_data):
     planner's backend predicts for the same examples (pusher integrated from the commands)."""
     import torch
 
-    from planner.dynamics import LearnedDynamics, PlanState
+    from planner.dynamics import PlanState
+    from planner.learned import LearnedDynamics
     from se3net.checkpoint import load_checkpoint
     from se3net.data import evenly_spaced
     from se3net.evaluate import MULTI_STEPS, evaluate_checkpoint
