@@ -6,11 +6,12 @@ positions over the horizon. Backends:
 
 - ``LearnedDynamics`` (``planner.learned``): an SE3-Net or flow-net checkpoint rolled
   forward, each predicted cloud fed back as the next input (as the paper does for multi-step
-  prediction), the pusher position integrated from the commands into the control vector;
-  the object's pose at each step is a least-squares rigid fit (Kabsch, in the table plane) of its predicted points
-  to its current points, composed with its current pose. Differentiable end to end with
-  respect to the actions. With a contact margin, a predicted motion of an object counts only
-  at the steps where something could touch it (``planner.learned.contact_gate``).
+  prediction), the pusher position integrated from the commands into the control vector; the
+  object's pose at each step is a least-squares rigid fit (Kabsch, in the table plane) of
+  its predicted points to its current points, composed with its current pose. Differentiable
+  end to end with respect to the actions. With a contact margin, a predicted motion of an
+  object counts only at the steps where something could touch it
+  (``planner.learned.contact_gate``).
 - ``OracleDynamics``: the MuJoCo world itself, copied and simulated for each candidate: the
   upper bound any learned model is measured against.
 - ``NoMotionDynamics``: nothing but the pusher moves: the lower bound.
