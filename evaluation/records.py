@@ -27,14 +27,14 @@ SCHEMA = 2
 """the layout of today's records"""
 
 BEFORE = {
-    "optimiser": {"horizon": 4},
+    "optimiser": {"horizon": 4, "knots": 0, "spline": "linear"},
     "cost": {"w_disturb": 0.0, "shaping_fade": "everywhere", "w_keepout": 0.0, "near_goal_m": 0.0},
     "rollout": {"feedback": "grid", "contact_margin_m": None},
 }
 """how a record that lacks a setting ran: 4 steps ahead (study and improve runs from before
-they recorded the horizon); no disturbance term, the shaping term faded wherever the pusher
-was, no keep-out term, neither faded near the goal; predicted clouds fed back on the grid,
-every predicted motion counted"""
+they recorded the horizon), a plan of one value per step (no knots); no disturbance term, the
+shaping term faded wherever the pusher was, no keep-out term, neither faded near the goal;
+predicted clouds fed back on the grid, every predicted motion counted"""
 
 RETIRED = {"motion_gain": "off", "w_edge": 0.0, "rollout_steps": 1}
 """options removed from the package, with the value that means "not used" (a gain fitted to
