@@ -390,7 +390,8 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
         acc = json.loads(cache.read_text()) if cache.exists() else None
         if acc is not None:
             # a cache from before the horizon was recorded was rolled 4 steps
-            was_rolled = {**BEFORE["optimiser"], **acc.pop("rolled", BEFORE["rollout"])}
+            was_rolled = {"horizon": BEFORE["optimiser"]["horizon"],
+                          **acc.pop("rolled", BEFORE["rollout"])}  # fmt: skip
             if was_rolled != rolled or acc.pop("measured", None) != measured:
                 acc = None
         if acc is None:
