@@ -133,11 +133,11 @@ class LearnedDynamics:
             or not self.skip_out_of_reach
         ):
             return self._rollout(state, actions, clouds=clouds)
-        far = self.out_of_reach(state, actions)
+        pusher = integrate_pusher(state, actions, self.dt)
+        far = self.out_of_reach(state, pusher)
         if not far.any():
             return self._rollout(state, actions)
         K, H, _ = actions.shape
-        pusher = integrate_pusher(state, actions, self.dt)
         poses = state.object_pose.to(actions).expand(K, H, 3).clone()
         others = None
         if state.n_others:
@@ -149,11 +149,11 @@ class LearnedDynamics:
                 others[~far] = near.other_poses
         return Rollout(poses, pusher, other_poses=others)
 
-    def out_of_reach(self, state: PlanState, actions: torch.Tensor) -> torch.Tensor:
-        """(K,) bool: the candidates whose pusher path stays more than the contact gate's
-        reach and ``SKIP_BEYOND_M`` from every object (as it is now) at every step."""
-        K = actions.shape[0]
-        pusher = integrate_pusher(state, actions, self.dt)
+    def out_of_reach(self, state: PlanState, pusher: torch.Tensor) -> torch.Tensor:
+        """(K,) bool: the candidates whose pusher path, ``pusher`` (K,H,2) after each step
+        (``integrate_pusher``), stays more than the contact gate's reach and ``SKIP_BEYOND_M``
+        from every object (as it is now) at every step."""
+        K = pusher.shape[0]
         path = torch.cat([state.pusher_xy.to(pusher).expand(K, 1, 2), pusher], 1)
         objects = [(state.object_pose[:2], state.footprint_radius_m)]
         if state.n_others and state.other_radii_m is not None:

@@ -376,7 +376,7 @@ def test_skipping_the_network_out_of_reach_gives_the_full_rollout_to_within_a_mi
     towards = (0.15 * to_box / to_box.norm()).expand(16, 8, 2)
     U = torch.cat([towards, 0.15 * (2 * torch.rand(48, 8, 2, generator=gen) - 1)])
     with torch.inference_mode():
-        far = dyn.out_of_reach(state, U)
+        far = dyn.out_of_reach(state, integrate_pusher(state, U, scenario.action.dt_control_s))
         skipped = dyn.rollout(state, U)
         full = dyn._rollout(state, U)
     assert 0 < far.sum() < len(U) and not far[:16].any()  # both kinds, the straight pushes near
