@@ -158,7 +158,7 @@ class LearnedDynamics:
         objects = [(state.object_pose[:2], state.footprint_radius_m)]
         if state.n_others and state.other_radii_m is not None:
             objects += list(zip(state.other_poses[:, :2], state.other_radii_m, strict=True))
-        far = torch.ones(K, dtype=torch.bool, device=actions.device)
+        far = torch.ones(K, dtype=torch.bool, device=pusher.device)
         for centre, radius in objects:
             reach = float(radius) + self.pusher_radius + self.contact_margin + SKIP_BEYOND_M
             c = centre.to(pusher).expand(K, 2)
