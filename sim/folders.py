@@ -26,8 +26,14 @@ LOCK_NAME = ".se3push.lock"
 """the lock file in a folder being written (its content: the holder's pid and command)"""
 
 TEMPORARY = ".*.tmp-*"
-"""the name pattern of a file being written atomically (``sim.shards.atomic_write_bytes``): one
-found when a folder is taken was left by a killed writer, and is removed"""
+"""the name pattern of a file being written atomically (:func:`temporary_path`): one found
+when a folder is taken was left by a killed writer, and is removed"""
+
+
+def temporary_path(path: Path) -> Path:
+    """Where ``path`` is written before it is renamed into place (it matches ``TEMPORARY``)."""
+    return path.with_name(f".{path.name}.tmp-{os.getpid()}")
+
 
 DISK_ERRORS = {
     errno.ENOSPC: "no space left on the device",

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from scenarios import InputError
-from sim.folders import unwritable
+from sim.folders import temporary_path, unwritable
 
 FIXED_TIME = (1980, 1, 1, 0, 0, 0)
 
@@ -39,7 +39,7 @@ def sha256(path: Path) -> str:
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` via a temporary file in the same folder, fsync, rename."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")  # sim.folders.TEMPORARY
+    tmp = temporary_path(path)
     try:
         with open(tmp, "wb") as f:
             f.write(data)
