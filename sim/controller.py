@@ -154,6 +154,37 @@ class PusherIK:
         return np.clip(q_next, self.q_min, self.q_max)
 
 
+def _arm_geometry(scenario: Scenario) -> tuple[float, float, float]:
+    """The links' lengths and how far the wrist sits below the shoulder (m)."""
+    a = scenario.arm
+    l1, l2 = a.link_lengths_m
+    return l1, l2, a.shoulder_height_m - (a.pusher_clearance_m + a.pusher_length_m)
+
+
+def planar_arm_reach(scenario: Scenario, xy_m: np.ndarray) -> np.ndarray:
+    """Joint angles (..., 4) that put the pusher tip at each of ``xy_m`` (..., 2) at its working
+    height, vertical, elbow up; a point out of reach gets the angles of the nearest reachable
+    point on its line from the base (the elbow straight or folded)."""
+    a = scenario.arm
+    l1, l2, down = _arm_geometry(scenario)
+    dx, dy = xy_m[..., 0] - a.base_xy_m[0], xy_m[..., 1] - a.base_xy_m[1]
+    r = np.hypot(dx, dy)
+    c2 = np.clip((r * r + down * down - l1 * l1 - l2 * l2) / (2 * l1 * l2), -1.0, 1.0)
+    p2 = np.arccos(c2)
+    p1 = np.arctan2(down, r) - np.arctan2(l2 * np.sin(p2), l1 + l2 * np.cos(p2))
+    return np.stack([np.arctan2(dy, dx), p1, p2, -(p1 + p2)], -1)
+
+
+def planar_arm_xy(scenario: Scenario, q: np.ndarray) -> np.ndarray:
+    """(..., 2) where the pusher tip is over the table with the arm at ``q`` (..., 4), its
+    pusher vertical: the inverse of :func:`planar_arm_reach`."""
+    a = scenario.arm
+    l1, l2, _ = _arm_geometry(scenario)
+    r = l1 * np.cos(q[..., 1]) + l2 * np.cos(q[..., 1] + q[..., 2])
+    return np.stack([a.base_xy_m[0] + r * np.cos(q[..., 0]),
+                     a.base_xy_m[1] + r * np.sin(q[..., 0])], -1)  # fmt: skip
+
+
 def planar_arm_ik(scenario: Scenario, xy_m: tuple[float, float] | np.ndarray) -> np.ndarray:
     """Joint angles (4,) that put the pusher tip at ``xy_m`` at its working height, vertical,
     elbow up.
@@ -163,10 +194,9 @@ def planar_arm_ik(scenario: Scenario, xy_m: tuple[float, float] | np.ndarray) ->
             the arm cannot cover).
     """
     a = scenario.arm
-    l1, l2 = a.link_lengths_m
+    l1, l2, down = _arm_geometry(scenario)
     dx, dy = xy_m[0] - a.base_xy_m[0], xy_m[1] - a.base_xy_m[1]
     r = math.hypot(dx, dy)
-    down = a.shoulder_height_m - (a.pusher_clearance_m + a.pusher_length_m)  # wrist below shoulder
     c2 = (r * r + down * down - l1 * l1 - l2 * l2) / (2 * l1 * l2)
     if not -1.0 <= c2 <= 1.0:
         lo = math.sqrt(max((l1 - l2) ** 2 - down**2, 0.0))
@@ -176,6 +206,7 @@ def planar_arm_ik(scenario: Scenario, xy_m: tuple[float, float] | np.ndarray) ->
             f"arm's reach ({lo:.3f}-{hi:.3f} m from arm.base_xy_m {tuple(a.base_xy_m)}, it is "
             f"{r:.3f} m); move arm.start_xy_m or objects.region_m within it"
         )
+    # scalar math, not planar_arm_reach's numpy: the episodes' start poses keep their last bits
     p2 = math.acos(c2)
     p1 = math.atan2(down, r) - math.atan2(l2 * math.sin(p2), l1 + l2 * math.cos(p2))
     return np.array([math.atan2(dy, dx), p1, p2, -(p1 + p2)])

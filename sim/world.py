@@ -41,6 +41,8 @@ FIRST_OBJECT_PART = 2
 MAX_PARTS = FIRST_OBJECT_PART + 3
 SETTLE_S = 0.1
 MAX_SPEED_STABLE_M_S = 5.0
+END_REASONS = ("", "unstable", "object_off_table")
+"""why an episode ends (``PushWorld.end_codes``)"""
 
 
 LINK_NAMES = ("arm base", "upper arm", "forearm")
@@ -296,9 +298,7 @@ class PushWorld:
         pusher's tip would be, world frame, with the arm in configuration ``q`` (4,): MuJoCo's
         own forward kinematics, on a scratch copy of the state (the world is not touched). The
         links are straight between these points, so their lowest points are among them."""
-        if self._scratch is None:
-            self._scratch = mujoco.MjData(self.model)
-        d = self._scratch
+        d = self.scratch()
         d.qpos[self._arm_qpos] = q
         mujoco.mj_kinematics(self.model, d)
         return np.stack(
@@ -412,22 +412,54 @@ class PushWorld:
         return np.clip(self._q_ref + qd * self.controller.dt, lo, hi)
 
     def _check_end(self) -> None:
-        d = self.data
-        if not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))) or np.any(
-            np.abs(d.qvel) > 50.0
-        ):
-            self._done, self._reason = True, "unstable"
-            return
+        code = int(self.end_codes(self.data.qpos[None], self.data.qvel[None])[0])
+        if code:
+            self._done, self._reason = True, END_REASONS[code]
+
+    def end_codes(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """(...) why an episode would end in each of the states ``qpos`` (..., nq), ``qvel``
+        (..., nv): 0 it goes on, else an index into ``END_REASONS`` (something not finite or
+        too fast: unstable; an object off the table)."""
+        unstable = ~(np.isfinite(qpos).all(-1) & np.isfinite(qvel).all(-1))
+        unstable |= (np.abs(qvel) > 50.0).any(-1)
         sx, sy = self.scenario.table.size_m
-        for adr in self._obj_qpos:
-            x, y, z = d.qpos[adr : adr + 3]
-            if abs(x) > sx / 2 or abs(y) > sy / 2 or z < 0:
-                self._done, self._reason = True, "object_off_table"
-                return
-        for adr in self._obj_dof:
-            if np.linalg.norm(d.qvel[adr : adr + 3]) > MAX_SPEED_STABLE_M_S:
-                self._done, self._reason = True, "unstable"
-                return
+        off = np.zeros_like(unstable)
+        fast = np.zeros_like(unstable)
+        for qa, da in zip(self._obj_qpos, self._obj_dof, strict=True):
+            x, y, z = qpos[..., qa], qpos[..., qa + 1], qpos[..., qa + 2]
+            off |= (np.abs(x) > sx / 2) | (np.abs(y) > sy / 2) | (z < 0)
+            fast |= np.linalg.norm(qvel[..., da : da + 3], axis=-1) > MAX_SPEED_STABLE_M_S
+        # the order the checks were made in: unstable, then off the table, then too fast
+        return np.where(unstable, 1, np.where(off, 2, np.where(fast, 1, 0)))
+
+    def servo_reference(self) -> np.ndarray:
+        """(4,) where the arm's joint servos point now (the controller's reference)."""
+        return self._q_ref.copy()
+
+    def scratch(self) -> mujoco.MjData:
+        """A spare MjData of this world's model, for computations that must not touch it."""
+        if self._scratch is None:
+            self._scratch = mujoco.MjData(self.model)
+        return self._scratch
+
+    def plan_readout(self, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every object's planar pose (..., n, 3) and the pusher tip's position (..., 2) in
+        states ``qpos`` (..., nq), by MuJoCo's forward kinematics on the scratch data."""
+        lead = qpos.shape[:-1]
+        flat = qpos.reshape(-1, qpos.shape[-1])
+        d = self.scratch()
+        first = FIRST_OBJECT_PART
+        bodies = self._part_bodies[first : first + len(self.objects)]
+        poses = np.empty((len(flat), len(bodies), 3))
+        pusher = np.empty((len(flat), 2))
+        for i, q in enumerate(flat):
+            d.qpos[:] = q
+            mujoco.mj_kinematics(self.model, d)
+            R = d.xmat[bodies]
+            poses[i, :, :2] = d.xpos[bodies, :2]
+            poses[i, :, 2] = np.arctan2(R[:, 3], R[:, 0])
+            pusher[i] = d.site_xpos[self._pusher_site, :2]
+        return poses.reshape(*lead, len(bodies), 3), pusher.reshape(*lead, 2)
 
     # ---------------------------------------------------------------- observe
     def part_poses(self) -> np.ndarray:
