@@ -1,10 +1,13 @@
 """The record schema: what a run folder's ``config.json`` holds, and the one migration from
 every earlier layout to today's.
 
-Schema 2 (today's): the run's own fields (scenario, n, model, seed, max_steps…) and ``plan``,
+Schema 3 (today's): the run's own fields (scenario, n, model, seed, max_steps…) and ``plan``,
 the nested planning settings (``planner.settings.PlanSettings``: ``planner``, ``optimiser``,
 ``cost``, ``rollout``), plus ``retired``: settings of options since removed from the package,
 where the run used one (such a folder can be read and compared, not extended).
+
+Schema 2 was schema 3 with the horizon in control steps (``optimiser.horizon``), not seconds
+(``optimiser.horizon_s``).
 
 Schema 1 (no ``schema`` key) is every folder from before: trial folders nested the optimiser's
 settings (``planning``) and the cost's (``cost``) beside flat rollout settings (``feedback``,
@@ -23,18 +26,25 @@ from typing import Any
 from planner.loop import TIGHT
 from planner.settings import PlanSettings
 
-SCHEMA = 2
+SCHEMA = 3
 """the layout of today's records"""
 
+STEP_S = 0.15
+"""how long every push scenario holds an action (the paper's 0.15 s): records of schemas 1 and
+2 gave the horizon in these steps"""
+
 BEFORE = {
-    "optimiser": {"horizon": 4, "knots": 0, "spline": "linear"},
+    "optimiser": {"horizon_s": round(4 * STEP_S, 9), "knots": 0, "spline": "linear",
+                  "model_s": None},
     "cost": {"w_disturb": 0.0, "shaping_fade": "everywhere", "w_keepout": 0.0, "near_goal_m": 0.0},
-    "rollout": {"feedback": "grid", "contact_margin_m": None},
+    "rollout": {"feedback": "grid", "contact_margin_m": None, "push_out": False},
 }
 """how a record that lacks a setting ran: 4 steps ahead (study and improve runs from before
-they recorded the horizon), a plan of one value per step (no knots); no disturbance term, the
+they recorded the horizon), a plan of one value per step (no knots), the model's predictions
+counted over the whole horizon; no disturbance term, the
 shaping term faded wherever the pusher was, no keep-out term, neither faded near the goal;
-predicted clouds fed back on the grid, every predicted motion counted"""
+predicted clouds fed back on the grid, every predicted motion counted, predicted poses not
+moved out of the pusher's path"""
 
 RETIRED = {"motion_gain": "off", "w_edge": 0.0, "rollout_steps": 1}
 """options removed from the package, with the value that means "not used" (a gain fitted to
@@ -42,7 +52,7 @@ the push's own steps; a term keeping the object off the table's edge; improve's 
 fine-tuning: docs/experiments)"""
 
 FLAT = {
-    "horizon": ("optimiser", "horizon"),
+    "horizon": ("optimiser", "horizon"),  # in steps: _horizon_in_seconds
     "shaping_fade": ("cost", "shaping_fade"),
     "keepout_weight": ("cost", "w_keepout"),
     "near_goal_m": ("cost", "near_goal_m"),
@@ -60,11 +70,23 @@ def _motion_gain(recorded: Any) -> Any:
     return recorded
 
 
+def _horizon_in_seconds(plan: dict[str, Any]) -> None:
+    """A horizon recorded in control steps (``optimiser.horizon``), in seconds, in place."""
+    optimiser = plan.get("optimiser", {})
+    if "horizon" in optimiser:
+        optimiser["horizon_s"] = round(optimiser.pop("horizon") * STEP_S, 9)
+
+
 def migrate_config(meta: dict[str, Any]) -> dict[str, Any]:
     """A run folder's ``config.json`` of any schema, in today's (a new dict; today's records
     are returned as they are)."""
-    if meta.get("schema") == SCHEMA:
-        return meta
+    if meta.get("schema") in (2, SCHEMA):  # settings added since it was written ran as before
+        plan = copy.deepcopy(meta["plan"])
+        _horizon_in_seconds(plan)
+        for section, fields in BEFORE.items():
+            for field, value in fields.items():
+                plan.setdefault(section, {}).setdefault(field, value)
+        return {**meta, "schema": SCHEMA, "plan": plan}
     old = copy.deepcopy(meta)
     flat = "planning" not in old  # a study or improve run: the rest were the defaults
     plan: dict[str, Any] = {
@@ -76,11 +98,13 @@ def migrate_config(meta: dict[str, Any]) -> dict[str, Any]:
     for name, (section, field) in FLAT.items():
         if name in old:
             plan[section][field] = old.pop(name)
+    _horizon_in_seconds(plan)
     for section, fields in BEFORE.items():
         for field, value in fields.items():
             # a flat run could only have lacked the settings it flattened; the rest were the
             # defaults of the time, today's
-            if not flat or (section, field) in FLAT.values():
+            flattened = (section, "horizon" if field == "horizon_s" else field) in FLAT.values()
+            if not flat or flattened:
                 plan[section].setdefault(field, value)
     if flat:
         defaults = asdict(PlanSettings())

@@ -370,8 +370,8 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
     from sim.datastore import read_manifest
 
     out = Path(out)
-    push_scenario(cfg.scenario)
-    horizon, rollout = cfg.plan.optimiser.horizon, cfg.plan.rollout
+    dt = push_scenario(cfg.scenario).action.dt_control_s
+    horizon, rollout = cfg.plan.optimiser.steps(dt), cfg.plan.rollout
     rows = []
     # the data by its contents: a folder made again under the same path is other data
     data_id = manifest_hash(read_manifest(cfg.data))
@@ -390,7 +390,7 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
         acc = json.loads(cache.read_text()) if cache.exists() else None
         if acc is not None:
             # a cache from before the horizon was recorded was rolled 4 steps
-            was_rolled = {"horizon": BEFORE["optimiser"]["horizon"],
+            was_rolled = {"horizon": round(BEFORE["optimiser"]["horizon_s"] / dt),
                           **acc.pop("rolled", BEFORE["rollout"])}  # fmt: skip
             if was_rolled != rolled or acc.pop("measured", None) != measured:
                 acc = None

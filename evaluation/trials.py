@@ -330,6 +330,7 @@ def run_trials(
     jobs = worker_backend(workers, threads, backend, address)
     # fail early on an unknown scenario, or one of joint controls
     scenario = push_scenario(cfg.scenario)
+    cfg.plan.optimiser.steps(scenario.action.dt_control_s)  # refuse more knots than steps
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta_path, log = out / "config.json", out / "trials.jsonl"

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from planner.base import PlanInfo, PlannerConfig
+from planner.base import PlanInfo
 from scenarios import InputError
 from sim.shards import atomic_write_bytes
 from sim.world import Observation, PushWorld
@@ -79,7 +79,7 @@ class MeshcatVisualiser:
         self.vis: Any = None
 
     def start(self, world: PushWorld, obs: Observation, goal: np.ndarray, *, object_index: int = 0,
-              horizon: int = PlannerConfig.horizon,
+              horizon: int = 3,
               model: torch.nn.Module | None = None) -> None:  # fmt: skip
         import meshcat
         import meshcat.animation

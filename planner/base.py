@@ -60,19 +60,24 @@ class PlannerConfig:
     quarter of the bound. Chosen on 50 paired single_box trials against the earlier settings
     (docs/planner.md); 24/19/15 was faster but lost success."""
 
-    horizon: int = 3
-    """actions per plan (0.15 s each). 3, not the 4 of before: a learned model's later steps
-    are its least reliable (a glancing push is predicted to keep the object in front of the
-    pusher, which slides off it), and with 3 the default model succeeded in more paired dev
-    trials on every scenario (docs/planner.md: three steps ahead, not four)"""
+    horizon_s: float = 0.45
+    """how far ahead a plan looks (s), in whole control steps (0.15 s each; a horizon between
+    two is rounded to the nearer). 0.45 s, 3 steps: a learned model's later steps are its
+    least reliable (a glancing push is predicted to keep the object in front of the pusher,
+    which slides off it), and with 3 the default model succeeded in more paired dev trials on
+    every scenario than with 4 (docs/planner.md: three steps ahead, not four)"""
     knots: int = 0
     """the plan's free values per action dimension: a spline through this many knots spread
     over the horizon gives the action at each control step (0: one per step, the actions
-    themselves); every optimiser optimises the knots"""
+    themselves; at most one per step); every optimiser optimises the knots"""
     spline: str = "linear"
     """how the knots make actions (with ``knots`` > 0): ``zoh`` (each knot held over its share
     of the steps), ``linear`` or ``cubic`` (a natural cubic spline) through knots at evenly
     spaced steps from the first to the last"""
+    model_s: float | None = None
+    """how far ahead the model's predictions of the objects count (s, whole control steps);
+    beyond, the objects are held where the model put them and only the pusher's exact path
+    goes on (None: the whole horizon)"""
     samples: int = 32
     """candidate sequences per iteration (CEM: the first iteration's; MPPI)"""
     iterations: int = 3
@@ -110,20 +115,30 @@ class PlannerConfig:
     seed: int = 0
     """seed of the planner's generator"""
 
+    def steps(self, dt_s: float) -> int:
+        """The horizon in control steps of ``dt_s`` seconds (at least one), or an InputError
+        where there are fewer steps than knots."""
+        steps = max(1, round(self.horizon_s / dt_s))
+        if self.knots > steps:
+            raise InputError(f"knots must be 0 (one per step) or 1..{steps} (the steps of "
+                             f"{dt_s:g} s in horizon_s {self.horizon_s:g}), got {self.knots}")
+        return steps
+
     def population(self, iteration: int) -> int:
         """CEM: sequences sampled at an iteration (0-based), before kept elites join the
         first: ``samples`` shrunk by ``shrink`` each iteration, at least twice the elites."""
         return max(2 * self.elites, round(self.samples / self.shrink**iteration))
 
     def __post_init__(self) -> None:
-        positive = ("horizon", "samples", "iterations", "elites", "grad_steps", "grad_starts",
+        positive = ("samples", "iterations", "elites", "grad_steps", "grad_starts",
                     "grad_init_samples")  # fmt: skip
         for name in positive:
             if getattr(self, name) < 1:
                 raise InputError(f"{name} must be a positive integer, got {getattr(self, name)}")
-        if self.knots < 0 or self.knots > self.horizon:
-            raise InputError(f"knots must be 0 (one per step) or 1..horizon ({self.horizon}), "
-                             f"got {self.knots}")  # fmt: skip
+        if not (math.isfinite(self.horizon_s) and self.horizon_s > 0):
+            raise InputError(f"horizon_s must be a time in seconds above 0, got {self.horizon_s}")
+        if self.knots < 0:
+            raise InputError(f"knots must be 0 (one per step) or more, got {self.knots}")
         if self.spline not in SPLINES:
             raise InputError(f"spline must be one of {', '.join(SPLINES)}, got {self.spline!r}")
         if self.spline != "zoh" and self.knots == 1:
@@ -217,8 +232,12 @@ class Planner:
         self.dynamics, self.cost, self.cfg = dynamics, cost, cfg
         self.bound = scenario.action.max_speed_m_s
         self.gen = torch.Generator().manual_seed(cfg.seed)
-        basis = spline_basis(cfg.horizon, cfg.knots, cfg.spline)
-        self.identity = cfg.knots in (0, cfg.horizon)  # a knot per step: the actions
+        self.horizon = cfg.steps(scenario.action.dt_control_s)
+        """H, the plan's control steps"""
+        dt = scenario.action.dt_control_s
+        self.model_steps = self.horizon if cfg.model_s is None else max(1, round(cfg.model_s / dt))
+        basis = spline_basis(self.horizon, cfg.knots, cfg.spline)
+        self.identity = cfg.knots in (0, self.horizon)  # a knot per step: the actions
         self.basis = torch.from_numpy(basis).float()  # (H, M): actions from knots
         self.shift = torch.from_numpy(shift_operator(basis)).float()  # (M, M)
         self.reset()
@@ -250,10 +269,25 @@ class Planner:
             return torch.cat([Z[..., 1:, :], Z[..., -1:, :]], -2)
         return self.clamp(torch.einsum("nm,...mc->...nc", self.shift.to(Z), Z))
 
+    def roll(self, state: PlanState, U: torch.Tensor) -> Rollout:
+        """The dynamics' rollout of actions U (K,H,2), the objects held after ``model_s``."""
+        rollout = self.dynamics.rollout(state, U)
+        n = self.model_steps
+        if n >= self.horizon:
+            return rollout
+
+        def held(x: torch.Tensor | None) -> torch.Tensor | None:
+            if x is None:
+                return None
+            return torch.cat([x[:, :n], x[:, n - 1 : n].expand_as(x[:, n:])], 1)
+
+        return Rollout(held(rollout.object_poses), rollout.pusher_xy, rollout.clouds,
+                       held(rollout.spread), held(rollout.other_poses))  # fmt: skip
+
     def evaluate(self, state: PlanState, Z: torch.Tensor) -> tuple[torch.Tensor, Rollout]:
         """Costs (K,) and rollouts of the plans of knots Z (K,M,2)."""
         U = self.actions(Z)
-        rollout = self.dynamics.rollout(state, U)
+        rollout = self.roll(state, U)
         return self.cost.cost(state, rollout, U, last_action=self.last_action), rollout
 
     def noise(self, K: int) -> torch.Tensor:

@@ -1,6 +1,12 @@
 """The push cost, written as weighted residuals so that sampling planners sum their squares
 and the SQP planner linearises them (Gauss-Newton).
 
+Each term is declared once, in :data:`TERMS`: its name, its residual, the ``CostConfig``
+weight that scales it and its norm (the square, for every term today), as MuJoCo MPC declares
+residuals and norms. What changes with the state (whether the pusher is behind the object,
+the fade near the goal, where the shaping term draws the pusher) is decided once a replan, by
+one function, :meth:`PushCost.stage`; the terms read the :class:`Stage` it returns.
+
 Per step h of a rollout: the object's position error and symmetry-aware yaw error to the goal
 (the terminal step weighted more than the running steps), a shaping term that draws the pusher
 to the object's far side from the goal (once behind it, only while the object is predicted not
@@ -34,6 +40,7 @@ both fade out with the object's distance to it (``near_goal_m`` 0: they never fa
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -41,20 +48,6 @@ import torch
 from planner.dynamics import PlanState, Rollout, segment_distance
 from scenarios import InputError, Scenario
 from sim.planar import wrap_angle
-
-TERMS = {
-    "position": "the object's position error to the goal, per step (the last weighted most)",
-    "yaw": "its symmetry-aware yaw error, likewise (objects with a heading to turn)",
-    "shaping": "the pusher's distance to the way round to behind the object",
-    "action": "the actions' size",
-    "smooth": "the actions' change from step to step (from the last executed action)",
-    "workspace": "the pusher's distance outside the workspace",
-    "keepout": "the pusher's path inside the object's circle while it is not yet behind it",
-    "spread": "an ensemble's disagreement about the object's poses",
-    "disturb": "how far the other objects are predicted to move",
-}
-"""the cost's terms, each a weighted residual (``PushCost.residual_terms``); the cost is the
-sum of their squares"""
 
 SHAPING_FADES = ("behind", "everywhere")
 """where predicted motion may fade the shaping term (``CostConfig.shaping_fade``)"""
@@ -204,6 +197,10 @@ class PushCost:
             return 1.0
         return min(1.0, float((self.goal[:2] - state.object_pose[:2].to(self.goal)).norm()) / near)
 
+    def stage(self, state: PlanState) -> Stage:
+        """Where the push is (:class:`Stage`): the one place the cost changes with the state."""
+        return Stage(self.is_behind(state), self.near_goal_fade(state), self.shaping_target(state))
+
     def residual_terms(
         self,
         state: PlanState,
@@ -215,49 +212,14 @@ class PushCost:
         """The weighted residuals (K, m_i) of each of :data:`TERMS` that applies, for K rollouts
         of ``actions`` (K,H,2); ``last_action`` (2,) is the action executed before this plan
         (the smoothness term's a_{-1})."""
-        c = self.cfg
-        K, H, _ = actions.shape
-        goal = self.goal.to(actions)
-        w = torch.full((H,), math.sqrt(c.w_running), dtype=actions.dtype, device=actions.device)
-        w[-1] = math.sqrt(c.w_terminal)
-        pos = (rollout.object_poses[..., :2] - goal[:2]) / c.pos_scale_m * w[None, :, None]
-        res = {"position": pos.flatten(1)}
-        period = state.yaw_period_rad
-        if period is not None:
-            yaw = wrap_angle(rollout.object_poses[..., 2] - goal[2], period) / c.yaw_scale_rad
-            res["yaw"] = math.sqrt(c.w_yaw) * yaw * w
-        moved_sq = ((rollout.object_poses[:, -1, :2] - state.object_pose[:2].to(actions)) ** 2).sum(
-            -1
-        )
-        behind, fade = self.is_behind(state), self.near_goal_fade(state)
-        # sqrt of the gate exp(-moved^2 / m^2), written without sqrt (its gradient at 0 is NaN);
-        # until the pusher is behind the object, predicted motion does not fade the term
-        sqrt_gate = torch.exp(-0.5 * moved_sq / c.moving_m**2)
-        if c.shaping_fade == "behind" and not behind:
-            sqrt_gate = torch.ones_like(sqrt_gate)
-        dist = (
-            rollout.pusher_xy[:, -1] - self.shaping_target(state).to(actions)
-        ) / c.shaping_scale_m
-        res["shaping"] = math.sqrt(c.w_shaping) * fade * sqrt_gate[:, None] * dist
-        res["action"] = math.sqrt(c.w_action) * actions.flatten(1) / self.bound
-        prev = torch.cat([last_action.to(actions).expand(K, 1, 2), actions[:, :-1]], 1)
-        res["smooth"] = math.sqrt(c.w_smooth) * (actions - prev).flatten(1) / self.bound
-        out = torch.relu(rollout.pusher_xy.abs() - self.half.to(actions)) / 0.01
-        res["workspace"] = math.sqrt(c.w_workspace) * out.flatten(1)
-        if c.w_keepout > 0 and not behind:
-            path = torch.cat([state.pusher_xy.to(actions).expand(K, 1, 2), rollout.pusher_xy], 1)
-            centre = state.object_pose[:2].to(actions).expand(K, 2)
-            keep = state.footprint_radius_m + self.pusher_radius
-            depth = torch.stack(
-                [torch.relu(keep - segment_distance(centre, path[:, h], path[:, h + 1]))
-                 for h in range(H)], 1)  # fmt: skip
-            res["keepout"] = math.sqrt(c.w_keepout) * fade * depth / c.pos_scale_m
-        if rollout.spread is not None and c.w_spread > 0:
-            res["spread"] = math.sqrt(c.w_spread) * rollout.spread / c.pos_scale_m
-        if rollout.other_poses is not None and c.w_disturb > 0 and state.n_others:
-            moved = rollout.other_poses[:, -1, :, :2] - state.other_poses[:, :2].to(actions)
-            res["disturb"] = math.sqrt(c.w_disturb) * moved.flatten(1) / c.pos_scale_m
-        return res
+        at = Inputs(self, state, rollout, actions, last_action, self.stage(state))
+        out = {}
+        for term in TERMS:
+            weight = 1.0 if term.weight is None else getattr(self.cfg, term.weight)
+            r = term.residual(at, math.sqrt(weight))
+            if r is not None:
+                out[term.name] = r
+        return out
 
     def residuals(
         self,
@@ -294,3 +256,136 @@ class PushCost:
     ) -> torch.Tensor:
         """(K,) total cost of each candidate."""
         return (self.residuals(state, rollout, actions, last_action=last_action) ** 2).sum(1)
+
+
+@dataclass(frozen=True)
+class Stage:
+    """Where a push is, decided once a replan from the state (:meth:`PushCost.stage`): the
+    approach terms (shaping and keep-out) read it; no term decides it for itself."""
+
+    behind: bool
+    """the pusher is within ``behind_deg`` of straight behind the object: the keep-out term is
+    off, and predicted motion may fade the shaping term"""
+    approach: float
+    """the factor on the approach terms: 1, falling inside ``near_goal_m`` of the goal"""
+    target: torch.Tensor
+    """(2,) where the shaping term draws the pusher (``PushCost.shaping_target``)"""
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """What a term's residual is computed from."""
+
+    cost: PushCost
+    state: PlanState
+    rollout: Rollout
+    actions: torch.Tensor
+    last_action: torch.Tensor
+    stage: Stage
+
+    @property
+    def step_weights(self) -> torch.Tensor:
+        """(H,) the square roots of the pose terms' weights per step: running, then terminal."""
+        c, a = self.cost.cfg, self.actions
+        w = torch.full((a.shape[1],), math.sqrt(c.w_running), dtype=a.dtype, device=a.device)
+        w[-1] = math.sqrt(c.w_terminal)
+        return w
+
+
+def _position(x: Inputs, w: float) -> torch.Tensor:
+    pos = x.rollout.object_poses[..., :2] - x.cost.goal.to(x.actions)[:2]
+    return (pos / x.cost.cfg.pos_scale_m * x.step_weights[None, :, None]).flatten(1)
+
+
+def _yaw(x: Inputs, w: float) -> torch.Tensor | None:
+    period = x.state.yaw_period_rad
+    if period is None:  # a cylinder: no heading to turn
+        return None
+    goal = x.cost.goal.to(x.actions)[2]
+    yaw = wrap_angle(x.rollout.object_poses[..., 2] - goal, period) / x.cost.cfg.yaw_scale_rad
+    return w * yaw * x.step_weights
+
+
+def _shaping(x: Inputs, w: float) -> torch.Tensor:
+    c, a = x.cost.cfg, x.actions
+    moved_sq = ((x.rollout.object_poses[:, -1, :2] - x.state.object_pose[:2].to(a)) ** 2).sum(-1)
+    # sqrt of the gate exp(-moved^2 / m^2), written without sqrt (its gradient at 0 is NaN);
+    # until the pusher is behind the object, predicted motion does not fade the term
+    sqrt_gate = torch.exp(-0.5 * moved_sq / c.moving_m**2)
+    if c.shaping_fade == "behind" and not x.stage.behind:
+        sqrt_gate = torch.ones_like(sqrt_gate)
+    dist = (x.rollout.pusher_xy[:, -1] - x.stage.target.to(a)) / c.shaping_scale_m
+    return w * x.stage.approach * sqrt_gate[:, None] * dist
+
+
+def _action(x: Inputs, w: float) -> torch.Tensor:
+    return w * x.actions.flatten(1) / x.cost.bound
+
+
+def _smooth(x: Inputs, w: float) -> torch.Tensor:
+    a = x.actions
+    prev = torch.cat([x.last_action.to(a).expand(a.shape[0], 1, 2), a[:, :-1]], 1)
+    return w * (a - prev).flatten(1) / x.cost.bound
+
+
+def _workspace(x: Inputs, w: float) -> torch.Tensor:
+    out = torch.relu(x.rollout.pusher_xy.abs() - x.cost.half.to(x.actions)) / 0.01
+    return w * out.flatten(1)
+
+
+def _keepout(x: Inputs, w: float) -> torch.Tensor | None:
+    if x.stage.behind or w == 0:  # behind the object, the pusher's way is the push
+        return None
+    a, state = x.actions, x.state
+    K, H, _ = a.shape
+    path = torch.cat([state.pusher_xy.to(a).expand(K, 1, 2), x.rollout.pusher_xy], 1)
+    centre = state.object_pose[:2].to(a).expand(K, 2)
+    keep = state.footprint_radius_m + x.cost.pusher_radius
+    depth = torch.stack([torch.relu(keep - segment_distance(centre, path[:, h], path[:, h + 1]))
+                         for h in range(H)], 1)  # fmt: skip
+    return w * x.stage.approach * depth / x.cost.cfg.pos_scale_m
+
+
+def _spread(x: Inputs, w: float) -> torch.Tensor | None:
+    if x.rollout.spread is None or w == 0:  # one model: nothing to disagree about
+        return None
+    return w * x.rollout.spread / x.cost.cfg.pos_scale_m
+
+
+def _disturb(x: Inputs, w: float) -> torch.Tensor | None:
+    if x.rollout.other_poses is None or not x.state.n_others or w == 0:
+        return None
+    moved = x.rollout.other_poses[:, -1, :, :2] - x.state.other_poses[:, :2].to(x.actions)
+    return w * moved.flatten(1) / x.cost.cfg.pos_scale_m
+
+
+@dataclass(frozen=True)
+class Term:
+    """One term of the cost: its residual, the weight that scales it (a ``CostConfig``
+    field; None: 1) and its norm (every term's is the square, summed over its residuals)."""
+
+    name: str
+    residual: Callable[[Inputs, float], torch.Tensor | None]
+    """(K, m) the term's residuals times the square root of its weight (given), or None where
+    it does not apply (a term of weight 0 that only some states have drops out)"""
+    weight: str | None
+    doc: str
+    norm: str = "quadratic"
+
+
+TERMS: tuple[Term, ...] = (
+    Term("position", _position, None,
+         "the object's position error to the goal, per step (w_running, the last w_terminal)"),
+    Term("yaw", _yaw, "w_yaw", "its symmetry-aware yaw error, likewise (objects with a heading)"),
+    Term("shaping", _shaping, "w_shaping",
+         "the pusher's distance, at the last step, to the way round to behind the object"),
+    Term("action", _action, "w_action", "the actions' size"),
+    Term("smooth", _smooth, "w_smooth",
+         "the actions' change from step to step (from the last executed action)"),
+    Term("workspace", _workspace, "w_workspace", "the pusher's distance outside the workspace"),
+    Term("keepout", _keepout, "w_keepout",
+         "the pusher's path inside the object's circle while it is not yet behind it"),
+    Term("spread", _spread, "w_spread", "an ensemble's disagreement about the object's poses"),
+    Term("disturb", _disturb, "w_disturb", "how far the other objects are predicted to move"),
+)  # fmt: skip
+"""the cost's terms, each declared once: the cost is the sum of their weighted squares"""

@@ -12,8 +12,8 @@ positions over the horizon. Backends:
   end to end with respect to the actions. With a contact margin, a predicted motion of an
   object counts only at the steps where something could touch it
   (``planner.learned.contact_gate``).
-- ``OracleDynamics``: the MuJoCo world itself, copied and simulated for each candidate: the
-  upper bound any learned model is measured against.
+- ``OracleDynamics``: the MuJoCo world itself, every candidate simulated from its current
+  state (in one batched rollout): the upper bound any learned model is measured against.
 - ``NoMotionDynamics``: nothing but the pusher moves: the lower bound.
 - ``EnsembleDynamics``: several learned checkpoints rolled side by side; it predicts their
   mean and reports their disagreement (``Rollout.spread``), which the cost can penalise so
@@ -158,41 +158,22 @@ class NoMotionDynamics:
 
 
 class OracleDynamics:
-    """The true simulator: each candidate is simulated from a copy of the world's state.
-
-    The oracle is the one backend that holds the world (it is given it when built); it
-    copies the world's current state at each rollout, and builds its copy again whenever the
-    world was reset (a reset builds a new model: other objects, sizes, masses and friction).
-    """
+    """The true simulator: every candidate simulated from the world's current state, all of
+    them in one batched MuJoCo rollout on the world's own model (``sim.batch``: the arm's
+    servos driven along the pusher's exact path, as its controller drives them)."""
 
     name, differentiable = "oracle", False
 
     def __init__(self, world: PushWorld, object_index: int = 0):
         self.world, self.object_index = world, object_index
-        self._clone: PushWorld | None = None
-        self._clone_of = None  # the world's model the copy was built from
 
     def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
-        if self._clone_of is not self.world.model:  # a new episode: copy its objects
-            self._clone, self._clone_of = self.world.clone(), self.world.model
-        start = self.world.snapshot()
+        from sim.batch import simulate_plans
+
         bound = self.world.scenario.action.max_speed_m_s  # float32 candidates may round past it
         a = np.clip(actions.detach().cpu().double().numpy(), -bound, bound)
-        K, H, _ = a.shape
-        n = len(self.world.objects)
-        every = np.empty((K, H, n, 3))  # every object's pose
-        pusher = np.empty((K, H, 2))
-        for k in range(K):
-            self._clone.restore(start)
-            for h in range(H):
-                if self._clone.ended:  # an object fell off: they stay where they were last seen
-                    if h == 0:
-                        raise ValueError("the oracle cannot plan from a world whose episode ended")
-                    every[k, h], pusher[k, h] = every[k, h - 1], pusher[k, h - 1]
-                    continue
-                every[k, h] = self._clone.advance(a[k, h])
-                pusher[k, h] = self._clone.pusher_xy()
-        i = self.object_index
+        every, pusher = simulate_plans(self.world, a)  # (K,H,n,3), (K,H,2)
+        i, n = self.object_index, every.shape[2]
         others = np.delete(every, i, axis=2) if n > 1 else None
         return Rollout(
             torch.from_numpy(every[:, :, i]).to(actions),
@@ -224,6 +205,7 @@ def make_dynamics(
     object_index: int = 0,
     feedback: str = "grid",
     contact_margin_m: float | None = None,
+    push_out: bool = False,
 ) -> Dynamics:
     """A backend by name: ``se3net``/``flow`` (a checkpoint; the shipped model by default;
     checkpoints joined by ``+``: an ensemble of them), ``oracle`` (needs the ``world`` and
@@ -262,6 +244,7 @@ def make_dynamics(
                         device=device,
                         feedback=feedback,
                         contact_margin_m=contact_margin_m,
+                        push_out=push_out,
                     )
                     for m in parts
                 ]
@@ -269,7 +252,7 @@ def make_dynamics(
 
         net, blob = load_checkpoint(model or "default", scenario=scenario, device=device)
         kind = "flow" if blob["model"]["variant"].startswith("flow") else "se3net"
-        return LearnedDynamics(
+        dynamics = LearnedDynamics(
             net,
             scenario,
             name=kind,
@@ -277,4 +260,6 @@ def make_dynamics(
             feedback=feedback,
             contact_margin_m=contact_margin_m,
         )
+        dynamics.push_out = push_out
+        return dynamics
     raise ValueError(f"unknown dynamics backend {name!r}; known: {', '.join(BACKENDS)}")

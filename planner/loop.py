@@ -206,6 +206,7 @@ def push_planner(cfg: PushConfig, scenario: Scenario, world: PushWorld) -> Plann
             device=cfg.device,
             feedback=cfg.plan.rollout.feedback,
             contact_margin_m=cfg.plan.rollout.contact_margin_m,
+            push_out=cfg.plan.rollout.push_out,
         )
     return make_planner(
         cfg.plan.planner,
@@ -273,7 +274,7 @@ def run_push(
     if on_transition is not None:
         on_transition(world, obs, None)
     viz = viz or NullVisualiser()
-    viz.start(world, obs, goal, object_index=cfg.object_index, horizon=planner.cfg.horizon,
+    viz.start(world, obs, goal, object_index=cfg.object_index, horizon=planner.horizon,
               model=getattr(planner.dynamics, "model", None))  # fmt: skip
     try:
         for step in range(cfg.max_steps):

@@ -26,7 +26,7 @@ def _before(s: PlanSettings, *, optimiser: dict | None = None, cost: dict | None
 DEFAULT = PlanSettings()
 KEEPOUT = _before(DEFAULT, cost={"near_goal_m": 0.0})
 HORIZON3 = _before(KEEPOUT, cost={"w_keepout": 0.0})
-FADE_BEHIND = _before(HORIZON3, optimiser={"horizon": 4})
+FADE_BEHIND = _before(HORIZON3, optimiser={"horizon_s": 0.6})
 RENDERED_GATE = _before(FADE_BEHIND, cost={"shaping_fade": "everywhere"})
 GRID = replace(RENDERED_GATE, rollout=RolloutConfig(feedback="grid", contact_margin_m=None))
 

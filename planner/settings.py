@@ -40,6 +40,9 @@ class RolloutConfig:
     contact_margin_m: float | None = CONTACT_MARGIN_M
     """an object's predicted motion counts only where something passes within this margin of
     touching it (``planner.dynamics.contact_gate``); None: every predicted motion counts"""
+    push_out: bool = False
+    """move an object's predicted poses out of the pusher's exact path, so that the pusher
+    never passes through it (``planner.learned.push_out``)"""
 
     def __post_init__(self) -> None:
         if self.feedback not in FEEDBACK:
@@ -67,6 +70,10 @@ class PlanSettings:
 
         if self.planner not in PLANNERS:
             raise InputError(f"unknown planner {self.planner!r}; known: {', '.join(PLANNERS)}")
+
+
+RENAMED = {"optimiser.horizon": "optimiser.horizon_s, in seconds (0.15 s a control step)"}
+"""settings that changed name, and what to write now"""
 
 
 def _field_types(cls: type) -> dict[str, Any]:
@@ -117,6 +124,8 @@ def _build(cls: type, values: dict[str, Any], prefix: str, source: str) -> Any:
     unknown = sorted(set(values) - known)
     if unknown:
         where = f"{prefix}{unknown[0]}"
+        if where in RENAMED:
+            raise InputError(f"setting {where!r}{source} is now {RENAMED[where]}")
         raise InputError(
             f"unknown setting {where!r}{source}; known in {prefix.rstrip('.') or 'the top level'}:"
             f" {', '.join(sorted(known))} (`se3push config` prints them all)"

@@ -150,7 +150,7 @@ def replan_breakdown(
 
     scenario, world, state, goal = _bench_state(device)
     cfg = PlannerConfig()
-    H = cfg.horizon
+    H = cfg.steps(scenario.action.dt_control_s)
     dyn = make_dynamics("se3net", scenario, model=model, device=device)
     net, bb = dyn.model, dyn.model.backbone
     cost = PushCost(scenario, goal)
@@ -278,13 +278,14 @@ def bench_planner(
             n = max(3, repeats // 4) if backend == "oracle" or name in ("grad", "sqp") else repeats
             times[key] = 1e3 * median_seconds(lambda p=planner: p.plan(state), repeats=n, warmup=2)
     dyn = make_dynamics("se3net", scenario, model=model, device=device)
-    U = torch.zeros(cfg.samples, cfg.horizon, 2)
+    H = cfg.steps(scenario.action.dt_control_s)
+    U = torch.zeros(cfg.samples, H, 2)
 
     def rollout() -> None:
         with torch.inference_mode():
             dyn.rollout(state, U)
 
-    steps_per_s = cfg.samples * cfg.horizon / median_seconds(rollout, repeats=repeats)
+    steps_per_s = cfg.samples * H / median_seconds(rollout, repeats=repeats)
     breakdown = replan_breakdown(times["cem/se3net"], repeats=repeats, device=device, model=model)
     side_by_side = Backend(workers=2)
     pair = list(run_jobs(_side_by_side_replan, [(repeats, model, False)] * 2, side_by_side))
@@ -303,7 +304,7 @@ def bench_planner(
             "replan_ms_two_processes": float(np.median(planned_pair)),
         },
         "se3net_rollout_candidate_steps_per_s": steps_per_s,
-        "settings": {"samples": cfg.samples, "horizon": cfg.horizon, "iterations": cfg.iterations},
+        "settings": {"samples": cfg.samples, "horizon_steps": H, "iterations": cfg.iterations},
     }
 
 

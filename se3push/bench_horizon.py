@@ -1,6 +1,7 @@
 """``se3push bench horizon``: what a long horizon costs a replan with the learned model, and what
 each lever saves: knots (fewer values to sample, not fewer network passes) and skipping the
-network for candidates that never come within reach of an object.
+network for candidates that never come within reach of an object; and what it costs with the
+simulator as the model (every candidate in one batched MuJoCo rollout, ``sim.batch``).
 
 Every figure is a median over repeats of one CEM replan with the shipped SE3-Net rolled as the
 planner rolls it (rendered feedback, the contact gate), on single_box in two states: ``near``
@@ -12,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-LONG = {"horizon": 8, "knots": 4, "spline": "cubic"}
+LONG = {"horizon_s": 1.2, "knots": 4, "spline": "cubic"}
 """the long-horizon plan timed: 8 steps of 0.15 s (1.2 s) through 4 cubic knots"""
 
 
@@ -23,21 +24,28 @@ def _states(device: str) -> dict:
 
     scenario, world, near, goal = _bench_state(device)
     start = PushWorld(scenario)
-    return scenario, goal, {"near": near, "approach": plan_state(start.reset(3), start)}
+    states = {"near": near, "approach": plan_state(start.reset(3), start)}
+    return scenario, goal, states, {"near": world, "approach": start}
 
 
 def _replan_ms(horizon: dict, skip: bool, *, state, scenario, goal, repeats: int, model,
-               device: str) -> float:  # fmt: skip
+               device: str, world=None) -> float:  # fmt: skip
+    """One CEM replan's median (ms): the shipped SE3-Net as the planner rolls it, or, given
+    ``world``, the simulator."""
     import dataclasses
 
     from planner import PlanSettings, PushCost, make_dynamics, make_planner
     from se3push.bench import median_seconds
 
     plan = PlanSettings()
-    dyn = make_dynamics("se3net", scenario, model=model, device=device,
-                        feedback=plan.rollout.feedback,
-                        contact_margin_m=plan.rollout.contact_margin_m)  # fmt: skip
-    dyn.skip_out_of_reach = skip
+    if world is not None:
+        dyn = make_dynamics("oracle", scenario, world=world)
+        repeats = max(3, repeats // 4)
+    else:
+        dyn = make_dynamics("se3net", scenario, model=model, device=device,
+                            feedback=plan.rollout.feedback,
+                            contact_margin_m=plan.rollout.contact_margin_m)  # fmt: skip
+        dyn.skip_out_of_reach = skip
     cfg = dataclasses.replace(plan.optimiser, **horizon)
     planner = make_planner("cem", dyn, PushCost(scenario, goal, plan.cost), scenario, cfg)
     return 1e3 * median_seconds(lambda: planner.plan(state), repeats=repeats, warmup=2)
@@ -48,7 +56,7 @@ def _side_by_side(repeats: int, model: str | None) -> float:
     import torch
 
     torch.set_num_threads(1)
-    scenario, goal, states = _states("cpu")
+    scenario, goal, states, _ = _states("cpu")
     return _replan_ms(LONG, True, state=states["near"], scenario=scenario, goal=goal,
                       repeats=repeats, model=model, device="cpu")  # fmt: skip
 
@@ -58,12 +66,12 @@ def bench_horizon(
 ) -> dict:
     """Median replan (ms) of today's 3-step plan and of the 1.2 s plan (``LONG``) with and
     without the network skip, near the box and on the approach; the long plan with the skip in
-    two processes side by side."""
+    two processes side by side; both plans with the simulator as the model."""
     from se3net.device import check_device
     from sim.jobs import Backend, run_jobs
 
     check_device(device)
-    scenario, goal, states = _states(device)
+    scenario, goal, states, worlds = _states(device)
     out: dict[str, dict[str, float]] = {}
     for where, state in states.items():
         timed = {"state": state, "scenario": scenario, "goal": goal, "repeats": repeats,
@@ -72,6 +80,8 @@ def bench_horizon(
             "today_3_steps": _replan_ms({}, True, **timed),
             "long_full_network": _replan_ms(LONG, False, **timed),
             "long_with_skip": _replan_ms(LONG, True, **timed),
+            "simulator_today_3_steps": _replan_ms({}, True, **timed, world=worlds[where]),
+            "simulator_long": _replan_ms(LONG, True, **timed, world=worlds[where]),
         }
     pair = list(run_jobs(_side_by_side, [(repeats, model)] * 2, Backend(workers=2)))
     out["near"]["long_with_skip_two_processes"] = float(np.median(pair))

@@ -117,7 +117,7 @@ def planning_options(s: argparse.ArgumentParser) -> None:
     s.add_argument("--config", default=None, metavar="FILE.toml",
                    help="planning settings from a TOML file (`se3push config`)")  # fmt: skip
     s.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="assign",
-                   help="one planning setting, e.g. --set optimiser.horizon=4 --set "
+                   help="one planning setting, e.g. --set optimiser.horizon_s=0.6 --set "
                    "cost.w_keepout=0 (after --preset and --config; repeatable)")  # fmt: skip
 
 

@@ -198,7 +198,7 @@ def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(
     trials = json.loads((tmp_path / "imp" / "round_0" / "heldout" / "tiny" / "config.json")
                         .read_text())  # fmt: skip
     plan = trials["plan"]
-    assert plan["cost"]["shaping_fade"] == "everywhere" and plan["optimiser"]["horizon"] == 4
+    assert plan["cost"]["shaping_fade"] == "everywhere" and plan["optimiser"]["horizon_s"] == 0.6
     assert plan["cost"]["w_keepout"] == 0.0 and plan["cost"]["near_goal_m"] == 0.0
     assert plan["rollout"] == {"feedback": "grid", "contact_margin_m": None}
 

@@ -65,8 +65,8 @@ def test_model_labels_and_bad_settings():
         resolve_settings(assignments=["rollout.contact_margin_m=-0.01"])
     with pytest.raises(ValueError, match="cost.shaping_fade is one of behind, everywhere"):
         resolve_settings(assignments=["cost.shaping_fade=never"])
-    with pytest.raises(ValueError, match="horizon must be a positive integer, got 0"):
-        resolve_settings(assignments=["optimiser.horizon=0"])
+    with pytest.raises(ValueError, match="horizon_s must be a time in seconds above 0, got 0"):
+        resolve_settings(assignments=["optimiser.horizon_s=0"])
 
 
 @pytest.fixture(scope="module")
@@ -116,7 +116,7 @@ def test_study_end_to_end_on_tiny(study_data, tmp_path):
         "contact_margin_m": rollout.contact_margin_m,
     }
     assert trials["plan"]["cost"]["shaping_fade"] == "everywhere"  # the study's, not the default
-    assert trials["plan"]["optimiser"]["horizon"] == plan.optimiser.horizon == 3
+    assert trials["plan"]["optimiser"]["horizon_s"] == plan.optimiser.horizon_s == 0.45
     # a second run reuses the cached accuracy and the finished trials
     cache = tmp_path / "study" / "accuracy" / "late.json"
     cached = json.loads(cache.read_text())

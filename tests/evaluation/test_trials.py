@@ -34,8 +34,9 @@ def _as_schema_1(folder, drop=(), **old_fields):
     meta = json.loads((folder / "config.json").read_text())
     plan = meta.pop("plan")
     del meta["schema"], meta["retired"]
+    flat = {k: plan["rollout"][k] for k in ("feedback", "contact_margin_m")}  # schema 1's
     old = {**meta, "planner": plan["planner"], "planning": plan["optimiser"], "cost": plan["cost"],
-           **plan["rollout"], "motion_gain": "off", **old_fields}  # fmt: skip
+           **flat, "motion_gain": "off", **old_fields}  # fmt: skip
     for key in drop:
         *path, name = key.split(".")
         node = old
@@ -170,7 +171,7 @@ def test_a_folder_of_other_planning_settings_is_refused(tmp_path):
         run_trials(replace(cfg, plan=_plan(cost=CostConfig(w_spread=0.0))), tmp_path,
                    progress=False)  # fmt: skip
     with pytest.raises(InputError, match="optimiser.horizon"):
-        run_trials(replace(cfg, plan=_plan(optimiser=PlannerConfig(horizon=2))), tmp_path,
+        run_trials(replace(cfg, plan=_plan(optimiser=PlannerConfig(horizon_s=0.3))), tmp_path,
                    progress=False)  # fmt: skip
     # a setting only another optimiser reads does not make other trials, even a setting the
     # folder's code did not have yet

@@ -25,7 +25,10 @@ def _approach(world, obs, n=6):
     return obs
 
 
-def test_oracle_predictions_equal_what_the_world_then_does(tiny):
+def test_oracle_predictions_are_what_the_world_then_does(tiny):
+    """The oracle's batched rollout drives the arm along the pusher's exact path rather than
+    through the controller's QP (sim.batch), so it agrees with the world to a fraction of a
+    millimetre, not to the last digit."""
     world = PushWorld(tiny)
     obs = _approach(world, world.reset(2), 3)
     goal = torch.tensor([*(obs.object_poses[0, :2] + [0.05, 0.0]), 0.0])
@@ -40,7 +43,7 @@ def test_oracle_predictions_equal_what_the_world_then_does(tiny):
     for h, a in enumerate(info.actions):
         obs = world.step(a)
         np.testing.assert_allclose(obs.object_poses[0], info.predicted_poses[h], atol=1e-6)
-        np.testing.assert_allclose(obs.pusher_xy_m, info.predicted_pusher[h], atol=1e-6)
+        np.testing.assert_allclose(obs.pusher_xy_m, info.predicted_pusher[h], atol=4e-4)
 
 
 def test_the_oracle_simulates_the_objects_of_the_episode_after_a_reset():
@@ -60,7 +63,9 @@ def test_the_oracle_simulates_the_objects_of_the_episode_after_a_reset():
     predicted = oracle.rollout(plan_state(obs, world), U).object_poses[0].numpy()
     for h in range(4):
         obs = world.step(np.clip(U[0, h].double().numpy(), -0.15, 0.15))
-        np.testing.assert_allclose(obs.object_poses[0], predicted[h], atol=1e-4)
+        # within what a nudge of the servos by a tenth of a milliradian does (sim.batch)
+        np.testing.assert_allclose(obs.object_poses[0, :2], predicted[h, :2], atol=1e-3)
+        np.testing.assert_allclose(obs.object_poses[0, 2], predicted[h, 2], atol=5e-3)
     assert np.hypot(*(obs.object_poses[0, :2] - start[:2])) > 0.02  # the push moved it
 
 
@@ -225,7 +230,7 @@ def test_the_planner_keeps_to_pushes_the_ensemble_agrees_on():
     # the members agree on motion along x and disagree along y (one says it does not move)
     ensemble = EnsembleDynamics([_Carried((1.0, 1.0)), _Carried((1.0, 0.0))])
     # 4 steps, the horizon its thresholds were set for (with 3 the penalty curbs less)
-    strong = PlannerConfig(horizon=4, samples=256, elites=16, iterations=8)
+    strong = PlannerConfig(horizon_s=0.6, samples=256, elites=16, iterations=8)
 
     def planned(goal, w_spread):
         cost = PushCost(

@@ -27,7 +27,7 @@ def test_closed_loop_with_the_oracle_reaches_a_nearby_goal():
     assert result.success_tight and result.reason == "reached"
     assert result.final_pos_err_m <= 0.02 and len(steps) == result.steps
     assert steps[-1].pos_err_m < steps[0].pos_err_m
-    assert len(steps[0].predicted_poses) == PlannerConfig().horizon == 3
+    assert len(steps[0].predicted_poses) == PlannerConfig().steps(0.15) == 3
     # the oracle is the simulator: what it predicts for each executed action happens
     d = result.diagnostics
     assert d["moved_steps"] > 0 and d["phantom_steps"] == 0 and d["missed_steps"] == 0
@@ -119,7 +119,7 @@ def test_the_planning_and_cost_settings_reach_the_planner(monkeypatch):
     real = loop.make_planner
 
     def spy(name, dynamics, cost, scenario, cfg):
-        seen.append((cost.cfg.w_spread, cfg.horizon, cfg.samples, cfg.seed))
+        seen.append((cost.cfg.w_spread, cfg.horizon_s, cfg.samples, cfg.seed))
         return real(name, dynamics, cost, scenario, cfg)
 
     monkeypatch.setattr(loop, "make_planner", spy)
@@ -127,9 +127,9 @@ def test_the_planning_and_cost_settings_reach_the_planner(monkeypatch):
     run_push(PushConfig(goal=goal, scenario="tiny", model="no-motion", max_steps=1, seed=5))
     run_push(PushConfig(goal=goal, scenario="tiny", model="no-motion", max_steps=1, seed=5,
                         plan=PlanSettings(cost=CostConfig(w_spread=0.25),
-                                          optimiser=PlannerConfig(horizon=2, samples=9,
+                                          optimiser=PlannerConfig(horizon_s=0.3, samples=9,
                                                                   seed=99))))  # fmt: skip
-    assert seen == [(1.0, 3, 32, 5), (0.25, 2, 9, 5)]  # the planner's seed is the push's
+    assert seen == [(1.0, 0.45, 32, 5), (0.25, 0.3, 9, 5)]  # the planner's seed is the push's
 
 
 def test_the_next_plan_is_smoothed_from_the_noisy_action_the_world_ran(monkeypatch):

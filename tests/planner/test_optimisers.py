@@ -28,7 +28,7 @@ def test_each_optimiser_reaches_the_known_optimum_within_its_margin(name, goal):
     state = toy_state()
     cost = PushCost(SCENARIO, torch.tensor(goal), TOY_COST)
     planner = make_planner(name, CarriedDisk(DT), cost, SCENARIO, STRONG[name])
-    best = optimum(cost, state, planner.cfg.horizon, DT, BOUND)
+    best = optimum(cost, state, planner.horizon, DT, BOUND)
     _, info = planner.plan(state)
     assert info.cost <= best * (1 + MARGIN[name]) + 1e-3, (info.cost, best)
     assert np.all(np.abs(info.actions) <= BOUND + 1e-7)
@@ -69,8 +69,8 @@ def test_warm_start_is_the_previous_plan_shifted():
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match="unknown planner 'ilqr'; known: cem, mppi, grad, sqp"):
         make_planner("ilqr", CarriedDisk(DT), PushCost(SCENARIO, (0.0, 0.0, 0.0)), SCENARIO)
-    with pytest.raises(ValueError, match="horizon must be a positive integer"):
-        PlannerConfig(horizon=0)
+    with pytest.raises(ValueError, match="horizon_s must be a time in seconds above 0, got 0"):
+        PlannerConfig(horizon_s=0)
     with pytest.raises(ValueError, match="samples must be a positive integer"):
         PlannerConfig(samples=-4)
     with pytest.raises(ValueError, match="not finite"):
@@ -93,7 +93,7 @@ def test_sqp_goes_on_when_osqp_fails(monkeypatch):
     planner = make_planner("sqp", CarriedDisk(DT), cost, SCENARIO, PlannerConfig(iterations=4))
     state = toy_state()
     with torch.no_grad():
-        rest, _ = planner.evaluate(state, torch.zeros(1, planner.cfg.horizon, 2))
+        rest, _ = planner.evaluate(state, torch.zeros(1, planner.horizon, 2))
     _, info = planner.plan(state)  # the first QP fails: a smaller region, and on
     assert len(calls) > 1 and info.cost < 0.9 * float(rest[0])
 
@@ -117,7 +117,7 @@ def test_sqp_trust_region_grows_after_good_steps():
     cost = PushCost(SCENARIO, torch.tensor(goal), TOY_COST)
     cfg = PlannerConfig(iterations=8, trust_radius=0.01)  # 8 steps of 0.01 could not get there
     planner = make_planner("sqp", CarriedDisk(DT), cost, SCENARIO, cfg)
-    best = optimum(cost, toy_state(), cfg.horizon, DT, BOUND)
+    best = optimum(cost, toy_state(), cfg.steps(DT), DT, BOUND)
     _, info = planner.plan(toy_state())
     assert info.cost <= best * (1 + MARGIN["sqp"]) + 1e-3, (info.cost, best)
 
@@ -259,7 +259,7 @@ def test_icem_shrinks_the_population_and_keeps_shifted_elites_for_the_next_repla
     planner.plan(toy_state())
     assert dyn.batches == [40, 32, 26]  # 40, 40/1.25, 40/1.25^2 (rounded; >= 2 x elites)
     kept = planner.kept.clone()
-    assert kept.shape == (3, cfg.horizon, 2)  # 30 % of the 10 elites
+    assert kept.shape == (3, cfg.steps(DT), 2)  # 30 % of the 10 elites
     torch.testing.assert_close(kept[:, -1], kept[:, -2])  # shifted: the last action repeated
     dyn.batches.clear()
     planner.plan(toy_state())

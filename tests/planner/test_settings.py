@@ -28,7 +28,7 @@ def test_a_toml_round_trip_gives_the_same_settings(name, tmp_path):
 def test_settings_that_are_not_the_defaults_survive_the_round_trip(tmp_path):
     odd = PlanSettings(
         planner="mppi",
-        optimiser=PlannerConfig(horizon=7, warm_std=None, temperature=0.125),
+        optimiser=PlannerConfig(horizon_s=1.05, model_s=0.45, warm_std=None, temperature=0.125),
         cost=CostConfig(shaping_fade="everywhere", w_keepout=2.5),
         rollout=RolloutConfig(feedback="grid", contact_margin_m=None),
     )
@@ -39,12 +39,12 @@ def test_settings_that_are_not_the_defaults_survive_the_round_trip(tmp_path):
 
 def test_later_sources_override_earlier_ones(tmp_path):
     path = tmp_path / "plan.toml"
-    path.write_text("[optimiser]\nhorizon = 5\nsamples = 16\n")
+    path.write_text("[optimiser]\nhorizon_s = 0.75\nsamples = 16\n")
     s = resolve_settings(
         preset="fade_behind", config=path, assignments=["optimiser.samples=12"],
         flags={"planner": "grad"},
     )  # fmt: skip
-    assert (s.optimiser.horizon, s.optimiser.samples, s.planner) == (5, 12, "grad")
+    assert (s.optimiser.horizon_s, s.optimiser.samples, s.planner) == (0.75, 12, "grad")
     assert s.cost.w_keepout == 0.0  # the preset's, kept where nothing overrides it
 
 
@@ -53,7 +53,9 @@ def test_later_sources_override_earlier_ones(tmp_path):
     [
         ("[cost]\nw_foo = 1\n", "unknown setting 'cost.w_foo' in"),
         ("horizon = 3\n", "unknown setting 'horizon' in"),
-        ("[optimiser]\nhorizon = 2.5\n", "setting optimiser.horizon must be int, got 2.5"),
+        ("[optimiser]\nknots = 2.5\n", "setting optimiser.knots must be int, got 2.5"),
+        ("[optimiser]\nhorizon = 8\n", "setting 'optimiser.horizon' in .*bad.toml is now "
+                                         "optimiser.horizon_s, in seconds"),
         ("[cost]\nshaping_fade = 3\n", "setting cost.shaping_fade must be str, got 3"),
         ('[rollout]\ncontact_margin_m = "1cm"\n', "must be off or float, got '1cm'"),
         ("optimiser = 3\n", "setting optimiser in"),
@@ -105,7 +107,7 @@ def test_each_preset_is_the_one_before_with_one_thing_taken_away():
     assert changed == [
         ["cost.near_goal_m"],
         ["cost.w_keepout"],
-        ["optimiser.horizon"],
+        ["optimiser.horizon_s"],
         ["cost.shaping_fade"],
         ["rollout.contact_margin_m", "rollout.feedback"],
     ]

@@ -50,7 +50,7 @@ def test_every_optimiser_finds_the_best_plan_over_the_knots(name):
               "mppi": dict(samples=512, iterations=20, init_std=0.2, temperature=0.02),
               "grad": dict(grad_steps=150, grad_lr=0.01),
               "sqp": dict(iterations=8, trust_radius=0.15)}[name]  # fmt: skip
-    cfg = PlannerConfig(horizon=8, knots=3, spline="linear", **strong)
+    cfg = PlannerConfig(horizon_s=1.2, knots=3, spline="linear", **strong)
     cost = PushCost(SCENARIO, torch.tensor((0.12, -0.09, 0.0)), TOY_COST)
     planner = make_planner(name, CarriedDisk(DT), cost, SCENARIO, cfg)
     B = spline_basis(8, 3, "linear")
@@ -65,14 +65,13 @@ def test_every_optimiser_finds_the_best_plan_over_the_knots(name):
 
 
 def test_a_cubic_plan_stays_inside_the_bounds():
-    cfg = PlannerConfig(horizon=10, knots=4, spline="cubic", seed=2)
+    cfg = PlannerConfig(horizon_s=1.5, knots=4, spline="cubic", seed=2)
     cost = PushCost(SCENARIO, torch.tensor((0.28, -0.28, 0.0)), TOY_COST)
     _, info = make_planner("cem", CarriedDisk(DT), cost, SCENARIO, cfg).plan(toy_state())
     assert np.abs(info.actions).max() <= BOUND + 1e-7
 
 
 BAD = [
-    ({"knots": 9}, "knots must be 0"),
     ({"knots": -1}, "knots must be 0"),
     ({"knots": 1, "spline": "cubic"}, "2 knots"),
     ({"spline": "bezier"}, "spline must be"),
@@ -82,4 +81,12 @@ BAD = [
 @pytest.mark.parametrize(("fields", "message"), BAD)
 def test_bad_spline_settings_are_refused(fields, message):
     with pytest.raises(InputError, match=message):
-        PlannerConfig(horizon=8, **fields)
+        PlannerConfig(horizon_s=1.2, **fields)
+
+
+def test_more_knots_than_the_horizon_has_steps_are_refused():
+    cfg = PlannerConfig(horizon_s=1.2, knots=9)
+    assert PlannerConfig(horizon_s=1.2, knots=8).steps(0.15) == 8
+    with pytest.raises(InputError, match=r"knots must be 0 \(one per step\) or 1..8 \(the steps "
+                                         r"of 0.15 s in horizon_s 1.2\), got 9"):
+        cfg.steps(0.15)
