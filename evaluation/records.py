@@ -34,22 +34,24 @@ STEP_S = 0.15
 2 gave the horizon in these steps"""
 
 BEFORE = {
-    "optimiser": {"horizon_s": round(4 * STEP_S, 9), "knots": 0, "spline": "linear",
-                  "model_s": None},
+    "optimiser": {"horizon_s": round(4 * STEP_S, 9), "knots": 0, "spline": "linear"},
     "cost": {"w_disturb": 0.0, "shaping_fade": "everywhere", "w_keepout": 0.0, "near_goal_m": 0.0},
-    "rollout": {"feedback": "grid", "contact_margin_m": None, "push_out": False},
+    "rollout": {"feedback": "grid", "contact_margin_m": None},
 }
 """how a record that lacks a setting ran: 4 steps ahead (study and improve runs from before
-they recorded the horizon), a plan of one value per step (no knots), the model's predictions
-counted over the whole horizon; no disturbance term, the
+they recorded the horizon), a plan of one value per step (no knots); no disturbance term, the
 shaping term faded wherever the pusher was, no keep-out term, neither faded near the goal;
-predicted clouds fed back on the grid, every predicted motion counted, predicted poses not
-moved out of the pusher's path"""
+predicted clouds fed back on the grid, every predicted motion counted"""
 
-RETIRED = {"motion_gain": "off", "w_edge": 0.0, "rollout_steps": 1}
+RETIRED = {"motion_gain": "off", "w_edge": 0.0, "rollout_steps": 1, "push_out": False,
+           "model_s": None}  # fmt: skip
 """options removed from the package, with the value that means "not used" (a gain fitted to
 the push's own steps; a term keeping the object off the table's edge; improve's multi-step
-fine-tuning: docs/experiments)"""
+fine-tuning; a learned model's object pushed out of the pusher's path; objects held after the
+model's first steps: docs/experiments)"""
+
+RETIRED_SETTINGS = (("rollout", "push_out"), ("optimiser", "model_s"))
+"""retired options that were planning settings of schema 3"""
 
 FLAT = {
     "horizon": ("optimiser", "horizon"),  # in steps: _horizon_in_seconds
@@ -81,12 +83,17 @@ def migrate_config(meta: dict[str, Any]) -> dict[str, Any]:
     """A run folder's ``config.json`` of any schema, in today's (a new dict; today's records
     are returned as they are)."""
     if meta.get("schema") in (2, SCHEMA):  # settings added since it was written ran as before
-        plan = copy.deepcopy(meta["plan"])
+        plan = copy.deepcopy(meta.get("plan", {}))
         _horizon_in_seconds(plan)
         for section, fields in BEFORE.items():
             for field, value in fields.items():
                 plan.setdefault(section, {}).setdefault(field, value)
-        return {**meta, "schema": SCHEMA, "plan": plan}
+        retired = dict(meta.get("retired", {}))
+        for section, name in RETIRED_SETTINGS:
+            value = plan.get(section, {}).pop(name, RETIRED[name])
+            if value != RETIRED[name]:
+                retired[name] = value
+        return {**meta, "schema": SCHEMA, "plan": plan, "retired": retired}
     old = copy.deepcopy(meta)
     flat = "planning" not in old  # a study or improve run: the rest were the defaults
     plan: dict[str, Any] = {

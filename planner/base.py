@@ -74,10 +74,6 @@ class PlannerConfig:
     """how the knots make actions (with ``knots`` > 0): ``zoh`` (each knot held over its share
     of the steps), ``linear`` or ``cubic`` (a natural cubic spline) through knots at evenly
     spaced steps from the first to the last"""
-    model_s: float | None = None
-    """how far ahead the model's predictions of the objects count (s, whole control steps);
-    beyond, the objects are held where the model put them and only the pusher's exact path
-    goes on (None: the whole horizon)"""
     samples: int = 32
     """candidate sequences per iteration (CEM: the first iteration's; MPPI)"""
     iterations: int = 3
@@ -234,8 +230,6 @@ class Planner:
         self.gen = torch.Generator().manual_seed(cfg.seed)
         self.horizon = cfg.steps(scenario.action.dt_control_s)
         """H, the plan's control steps"""
-        dt = scenario.action.dt_control_s
-        self.model_steps = self.horizon if cfg.model_s is None else max(1, round(cfg.model_s / dt))
         basis = spline_basis(self.horizon, cfg.knots, cfg.spline)
         self.identity = cfg.knots in (0, self.horizon)  # a knot per step: the actions
         self.basis = torch.from_numpy(basis).float()  # (H, M): actions from knots
@@ -269,25 +263,10 @@ class Planner:
             return torch.cat([Z[..., 1:, :], Z[..., -1:, :]], -2)
         return self.clamp(torch.einsum("nm,...mc->...nc", self.shift.to(Z), Z))
 
-    def roll(self, state: PlanState, U: torch.Tensor) -> Rollout:
-        """The dynamics' rollout of actions U (K,H,2), the objects held after ``model_s``."""
-        rollout = self.dynamics.rollout(state, U)
-        n = self.model_steps
-        if n >= self.horizon:
-            return rollout
-
-        def held(x: torch.Tensor | None) -> torch.Tensor | None:
-            if x is None:
-                return None
-            return torch.cat([x[:, :n], x[:, n - 1 : n].expand_as(x[:, n:])], 1)
-
-        return Rollout(held(rollout.object_poses), rollout.pusher_xy, rollout.clouds,
-                       held(rollout.spread), held(rollout.other_poses))  # fmt: skip
-
     def evaluate(self, state: PlanState, Z: torch.Tensor) -> tuple[torch.Tensor, Rollout]:
         """Costs (K,) and rollouts of the plans of knots Z (K,M,2)."""
         U = self.actions(Z)
-        rollout = self.roll(state, U)
+        rollout = self.dynamics.rollout(state, U)
         return self.cost.cost(state, rollout, U, last_action=self.last_action), rollout
 
     def noise(self, K: int) -> torch.Tensor:

@@ -68,50 +68,6 @@ def contact_gate(
     return torch.stack(gated, 1)
 
 
-def push_out(
-    poses: torch.Tensor, start: torch.Tensor, points: torch.Tensor, path: torch.Tensor,
-    radius: float,
-) -> torch.Tensor:
-    """(K,H,3) an object's predicted poses moved on so that the pusher never ends a step
-    inside it: the pusher's path is exact, and a rigid object cannot let it through.
-
-    At each step the object's points (as they are now, moved with its predicted pose) that
-    lie within the pusher's ``radius`` of where the pusher ends the step are pushed out along
-    the step's direction, the object translated with them; the translation carries into the
-    later steps. A learned model that misses a graze (or predicts too little of a push) thus
-    still moves the object the least the pusher's path forces; the simulator's predictions
-    already keep the pusher out, so this asks of every model what physics gives.
-
-    Args:
-        poses: (K,H,3) predicted poses after each step.
-        start: (3,) the pose now.
-        points: (N,2) the object's observed points in the table plane (world frame), now.
-        path: (K,H+1,2) the pusher's position now and after each step.
-        radius: the pusher's radius (m).
-    """
-    K, H, _ = poses.shape
-    rel = points - start[:2]  # (N,2)
-    offset = torch.zeros(K, 2, dtype=poses.dtype, device=poses.device)
-    out = []
-    for h in range(H):
-        xy = poses[:, h, :2] + offset
-        turn = poses[:, h, 2] - start[2]
-        c, s = torch.cos(turn)[:, None], torch.sin(turn)[:, None]
-        pts = torch.stack([c * rel[:, 0] - s * rel[:, 1], s * rel[:, 0] + c * rel[:, 1]], -1)
-        pts = pts + xy[:, None]  # (K,N,2)
-        step = path[:, h + 1] - path[:, h]
-        length = step.norm(dim=-1, keepdim=True)
-        u = step / length.clamp_min(1e-9)
-        v = pts - path[:, h + 1, None]
-        vu, vv = (v * u[:, None]).sum(-1), (v * v).sum(-1)
-        # along u, the least d with |v + d u| = radius for each point inside the pusher
-        d = -vu + (vu**2 - vv + radius**2).clamp_min(1e-12).sqrt()
-        d = torch.where((vv < radius**2) & (length > 1e-6), d, torch.zeros_like(d)).amax(-1)
-        offset = offset + d[:, None] * u
-        out.append(torch.cat([poses[:, h, :2] + offset, poses[:, h, 2:]], 1))
-    return torch.stack(out, 1)
-
-
 class LearnedDynamics:
     """An SE3-Net or flow-net checkpoint rolled forward over the horizon.
 
@@ -129,8 +85,6 @@ class LearnedDynamics:
     """
 
     differentiable = True
-    push_out = False
-    """move the object's predicted poses out of the pusher's exact path (:func:`push_out`)"""
     skip_out_of_reach = True
     """skip the network for candidates out of reach (:meth:`rollout`; off: to time the lever)"""
 
@@ -250,12 +204,6 @@ class LearnedDynamics:
             pusher_from = torch.cat([state.pusher_xy.to(pusher).expand(K, 1, 2), pusher], 1)
             reach = state.footprint_radius_m + self.pusher_radius + margin
             poses = contact_gate(poses, start, [(pusher_from, reach)])
-        if self.push_out:
-            sel = (obj & valid).flatten().nonzero()[:, 0]
-            if len(sel) >= 3:
-                src = to_world(T, points.flatten(1)[:, sel].T)[:, :2]
-                path = torch.cat([state.pusher_xy.to(pusher).expand(K, 1, 2), pusher], 1)
-                poses = push_out(poses, start, src, path, self.pusher_radius)
         others = None
         if state.n_others:
             masks = subsample(state.other_masks.to(self.device), self.stride)

@@ -1,4 +1,5 @@
-"""Named planners: today's default and the earlier ones that committed records were made with.
+"""Named planners: today's default, ``long`` (the planner the simulator needs), and the earlier
+ones that committed records were made with.
 
 A record folder made with an earlier planner is reproduced with ``--preset NAME`` (its
 ``config.json`` holds the settings in full; ``se3push config --preset NAME`` prints them).
@@ -29,6 +30,11 @@ HORIZON3 = _before(KEEPOUT, cost={"w_keepout": 0.0})
 FADE_BEHIND = _before(HORIZON3, optimiser={"horizon_s": 0.6})
 RENDERED_GATE = _before(FADE_BEHIND, cost={"shaping_fade": "everywhere"})
 GRID = replace(RENDERED_GATE, rollout=RolloutConfig(feedback="grid", contact_margin_m=None))
+LONG = replace(
+    DEFAULT,
+    optimiser=replace(DEFAULT.optimiser, horizon_s=1.2, knots=4, spline="cubic"),
+    cost=replace(DEFAULT.cost, w_keepout=0.0, near_goal_m=0.0),
+)
 
 PRESETS: dict[str, PlanSettings] = {
     "default": DEFAULT,
@@ -37,12 +43,15 @@ PRESETS: dict[str, PlanSettings] = {
     "fade_behind": FADE_BEHIND,
     "rendered_gate": RENDERED_GATE,
     "grid": GRID,
+    "long": LONG,
 }
 """today's planner (``default``), then each planner before it, named as the record folders of
 docs/results/trials/final name them: ``keepout``, the keep-out term not faded near the goal;
 ``horizon3``, no keep-out term; ``fade_behind``, 4 steps ahead; ``rendered_gate``, the shaping
 term faded by predicted motion wherever the pusher is; ``grid``, predicted clouds fed back on
-the observed grid and every predicted motion counted (no contact gate)"""
+the observed grid and every predicted motion counted (no contact gate); and ``long``, today's
+looking 1.2 s ahead through 4 cubic knots, without the keep-out term and the fade near the
+goal: the planner with which the simulator as model succeeds (docs/planner.md)"""
 
 
 def preset_settings(name: str) -> PlanSettings:

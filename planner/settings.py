@@ -40,9 +40,6 @@ class RolloutConfig:
     contact_margin_m: float | None = CONTACT_MARGIN_M
     """an object's predicted motion counts only where something passes within this margin of
     touching it (``planner.dynamics.contact_gate``); None: every predicted motion counts"""
-    push_out: bool = False
-    """move an object's predicted poses out of the pusher's exact path, so that the pusher
-    never passes through it (``planner.learned.push_out``)"""
 
     def __post_init__(self) -> None:
         if self.feedback not in FEEDBACK:
