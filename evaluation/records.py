@@ -36,7 +36,7 @@ STEP_S = 0.15
 BEFORE = {
     "optimiser": {"horizon_s": round(4 * STEP_S, 9), "knots": 0, "spline": "linear"},
     "cost": {"w_disturb": 0.0, "shaping_fade": "everywhere", "w_keepout": 0.0, "near_goal_m": 0.0},
-    "rollout": {"feedback": "grid", "contact_margin_m": None},
+    "rollout": {"feedback": "grid", "contact_margin_m": None, "gate": "circle"},
 }
 """how a record that lacks a setting ran: 4 steps ahead (study and improve runs from before
 they recorded the horizon), a plan of one value per step (no knots); no disturbance term, the
