@@ -36,7 +36,7 @@ STEP_S = 0.15
 BEFORE = {
     "optimiser": {"horizon_s": round(4 * STEP_S, 9), "knots": 0, "spline": "linear"},
     "cost": {"w_disturb": 0.0, "shaping_fade": "everywhere", "w_keepout": 0.0, "near_goal_m": 0.0},
-    "rollout": {"feedback": "grid", "contact_margin_m": None, "gate": "circle"},
+    "rollout": {"feedback": "grid", "contact_margin_m": None},
 }
 """how a record that lacks a setting ran: 4 steps ahead (study and improve runs from before
 they recorded the horizon), a plan of one value per step (no knots); no disturbance term, the
@@ -44,13 +44,13 @@ shaping term faded wherever the pusher was, no keep-out term, neither faded near
 predicted clouds fed back on the grid, every predicted motion counted"""
 
 RETIRED = {"motion_gain": "off", "w_edge": 0.0, "rollout_steps": 1, "push_out": False,
-           "model_s": None}  # fmt: skip
+           "model_s": None, "gate": "circle"}  # fmt: skip
 """options removed from the package, with the value that means "not used" (a gain fitted to
 the push's own steps; a term keeping the object off the table's edge; improve's multi-step
 fine-tuning; a learned model's object pushed out of the pusher's path; objects held after the
-model's first steps: docs/experiments)"""
+model's first steps; the contact gate measured to the object's points: docs/experiments)"""
 
-RETIRED_SETTINGS = (("rollout", "push_out"), ("optimiser", "model_s"))
+RETIRED_SETTINGS = (("rollout", "push_out"), ("optimiser", "model_s"), ("rollout", "gate"))
 """retired options that were planning settings of schema 3"""
 
 FLAT = {

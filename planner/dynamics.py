@@ -205,7 +205,6 @@ def make_dynamics(
     object_index: int = 0,
     feedback: str = "grid",
     contact_margin_m: float | None = None,
-    gate: str = "circle",
 ) -> Dynamics:
     """A backend by name: ``se3net``/``flow`` (a checkpoint; the shipped model by default;
     checkpoints joined by ``+``: an ensemble of them), ``oracle`` (needs the ``world`` and
@@ -244,7 +243,6 @@ def make_dynamics(
                         device=device,
                         feedback=feedback,
                         contact_margin_m=contact_margin_m,
-                        gate=gate,
                     )
                     for m in parts
                 ]
@@ -252,7 +250,7 @@ def make_dynamics(
 
         net, blob = load_checkpoint(model or "default", scenario=scenario, device=device)
         kind = "flow" if blob["model"]["variant"].startswith("flow") else "se3net"
-        dynamics = LearnedDynamics(
+        return LearnedDynamics(
             net,
             scenario,
             name=kind,
@@ -260,6 +258,4 @@ def make_dynamics(
             feedback=feedback,
             contact_margin_m=contact_margin_m,
         )
-        dynamics.gate_points = gate == "points"
-        return dynamics
     raise ValueError(f"unknown dynamics backend {name!r}; known: {', '.join(BACKENDS)}")

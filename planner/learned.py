@@ -32,28 +32,8 @@ CONTACT_SOFTNESS_M = 0.002
 its gradient is finite"""
 
 
-def points_distance(
-    now: torch.Tensor, start: torch.Tensor, points: torch.Tensor, a: torch.Tensor, b: torch.Tensor
-) -> torch.Tensor:
-    """(K,) the distance from the segments ``a`` to ``b`` (K,2) to the nearest of an object's
-    ``points`` (N,2, world frame, with the object at ``start`` (3,)) moved with it to ``now``
-    (K,3)."""
-    turn = now[:, 2] - start[2]
-    c, s = torch.cos(turn)[:, None], torch.sin(turn)[:, None]
-    rel = points - start[:2]
-    p = torch.stack([c * rel[:, 0] - s * rel[:, 1], s * rel[:, 0] + c * rel[:, 1]], -1)
-    p = p + now[:, None, :2]  # (K,N,2)
-    ab = (b - a)[:, None]
-    t = (((p - a[:, None]) * ab).sum(-1) / ((ab**2).sum(-1) + 1e-12)).clamp(0, 1)
-    closest = a[:, None] + t[..., None] * ab
-    return ((closest - p) ** 2).sum(-1).add(1e-12).sqrt().amin(-1)
-
-
 def contact_gate(
-    poses: torch.Tensor,
-    start: torch.Tensor,
-    movers: list[tuple[torch.Tensor, float]],
-    points: torch.Tensor | None = None,
+    poses: torch.Tensor, start: torch.Tensor, movers: list[tuple[torch.Tensor, float]]
 ) -> torch.Tensor:
     """(K,H,3) an object's predicted poses with every step's motion kept only where a mover
     could touch it: nothing moves an object from afar.
@@ -68,23 +48,20 @@ def contact_gate(
     Args:
         poses: (K,H,3) the predicted poses after each step.
         start: (3,) the pose before the first.
-        movers: (path (K,H+1,2), reach m) of each thing that can push the object; the reach
-            is from the object's centre, or, with ``points``, from the nearest of them.
-        points: (N,2) the object's observed points in the table plane (world frame), now:
-            the distance is to them, moved with the object, not to its centre.
+        movers: (path (K,H+1,2), reach m) of each thing that can push the object.
     """
     K, H, _ = poses.shape
     gated, before, now = [], start.expand(K, 3), start.expand(K, 3)
     for h in range(H):
         step = poses[:, h] - before
         step = torch.cat([step[:, :2], wrap_angle(step[:, 2:])], 1)
-        def distance(path: torch.Tensor) -> torch.Tensor:
-            if points is None:
-                return segment_distance(now[:, :2], path[:, h], path[:, h + 1])
-            return points_distance(now, start, points, path[:, h], path[:, h + 1])
-
-        gate = torch.stack([torch.sigmoid((reach - distance(path)) / CONTACT_SOFTNESS_M)
-                            for path, reach in movers]).amax(0)  # fmt: skip
+        gate = torch.stack(
+            [
+                torch.sigmoid((reach - segment_distance(now[:, :2], path[:, h], path[:, h + 1]))
+                              / CONTACT_SOFTNESS_M)
+                for path, reach in movers
+            ]
+        ).amax(0)  # fmt: skip
         now = now + gate[:, None] * step
         before = poses[:, h]
         gated.append(now)
@@ -108,9 +85,6 @@ class LearnedDynamics:
     """
 
     differentiable = True
-    gate_points = False
-    """the contact gate measures the pusher's distance to the object's observed points, not to
-    the circle that holds its footprint"""
     skip_out_of_reach = True
     """skip the network for candidates out of reach (:meth:`rollout`; off: to time the lever)"""
 
@@ -228,14 +202,8 @@ class LearnedDynamics:
         margin = self.contact_margin
         if margin is not None:
             pusher_from = torch.cat([state.pusher_xy.to(pusher).expand(K, 1, 2), pusher], 1)
-            sel = (obj & valid).flatten().nonzero()[:, 0]
-            if self.gate_points and len(sel) >= 3:  # the object's observed points
-                outline = to_world(T, points.flatten(1)[:, sel].T)[:, :2]
-                poses = contact_gate(poses, start, [(pusher_from, self.pusher_radius + margin)],
-                                     outline)  # fmt: skip
-            else:
-                reach = state.footprint_radius_m + self.pusher_radius + margin
-                poses = contact_gate(poses, start, [(pusher_from, reach)])
+            reach = state.footprint_radius_m + self.pusher_radius + margin
+            poses = contact_gate(poses, start, [(pusher_from, reach)])
         others = None
         if state.n_others:
             masks = subsample(state.other_masks.to(self.device), self.stride)

@@ -40,9 +40,6 @@ class RolloutConfig:
     contact_margin_m: float | None = CONTACT_MARGIN_M
     """an object's predicted motion counts only where something passes within this margin of
     touching it (``planner.dynamics.contact_gate``); None: every predicted motion counts"""
-    gate: str = "circle"
-    """what the contact gate measures the pusher's distance to: ``circle``, the circle that
-    holds the object's footprint, or ``points``, the object's observed points"""
 
     def __post_init__(self) -> None:
         if self.feedback not in FEEDBACK:
