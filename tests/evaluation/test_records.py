@@ -78,3 +78,14 @@ def test_a_schema_1_folder_continues_under_its_preset_with_the_same_records(tmp_
         return {k: v for k, v in rec.items() if k != "replan_ms_median"}
 
     assert first("old") == first("new")
+
+
+def test_a_schema_2_folder_gave_its_horizon_in_steps_and_reads_in_seconds():
+    """Schema 2 recorded ``optimiser.horizon`` in control steps of 0.15 s: the long-horizon dev
+    folder planned 8 of them, 1.2 s, and reads as today's settings object with that horizon."""
+    folder = ROOT / "docs/results/trials/dev_long/default_long"
+    config = json.loads((folder / "config.json").read_text())
+    assert config["schema"] == 2 and config["plan"]["optimiser"]["horizon"] == 8
+    plan = migrate_config(config)["plan"]
+    assert "horizon" not in plan["optimiser"] and plan["optimiser"]["horizon_s"] == 1.2
+    assert settings_from_dict(plan).optimiser.steps(0.15) == 8
