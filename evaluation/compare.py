@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from evaluation.diagnostics import pauses
-from evaluation.records import migrate_config
+from evaluation.records import migrate_config, migrate_record
 from evaluation.report import fmt
 from evaluation.trials import GROUPINGS, label_order, same_trial, wilson
 from planner.loop import TIGHT, TOLERANCES
@@ -138,7 +138,7 @@ def read_trials(folder: str | Path) -> tuple[dict[str, Any], dict[int, dict[str,
         missing = [k for k in RECORD_KEYS if k not in rec]
         if missing:
             raise InputError(f"{log}: a record lacks {', '.join(missing)}; is it a trial log?")
-        records[rec["trial"]] = rec
+        records[rec["trial"]] = migrate_record(rec)
     try:
         config = json.loads(meta.read_text())
     except json.JSONDecodeError:

@@ -1,4 +1,4 @@
-"""SE(3) utilities in torch: exponential map, composition, inverse, weighted rigid fit.
+"""SE(3) utilities in torch: the exponential map, and 6-vector parameters to transforms.
 
 Transforms are ``(...,3,4)`` matrices ``[R | t]`` acting on points ``(...,N,3)``. Everything is
 batched and differentiable; the exponential map is exact and smooth at theta = 0 (Taylor
@@ -39,45 +39,3 @@ def params_to_transform(params: torch.Tensor) -> torch.Tensor:
     """``(...,6)`` parameters ``[translation (3), axis-angle (3)]`` (the authors' order) to
     transforms ``(...,3,4)``."""
     return torch.cat([exp_so3(params[..., 3:]), params[..., :3, None]], -1)
-
-
-def compose(T_ab: torch.Tensor, T_bc: torch.Tensor) -> torch.Tensor:
-    """``T_ac = T_ab · T_bc`` for transforms ``(...,3,4)``."""
-    R = T_ab[..., :3] @ T_bc[..., :3]
-    t = (T_ab[..., :3] @ T_bc[..., 3:]) + T_ab[..., 3:]
-    return torch.cat([R, t], -1)
-
-
-def inverse(T: torch.Tensor) -> torch.Tensor:
-    """Inverse of transforms ``(...,3,4)``."""
-    Rt = T[..., :3].transpose(-1, -2)
-    return torch.cat([Rt, -(Rt @ T[..., 3:])], -1)
-
-
-def transform_points(T: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """Apply transforms ``(...,3,4)`` to points ``(...,N,3)``."""
-    return points @ T[..., :3].transpose(-1, -2) + T[..., None, :, 3]
-
-
-def rigid_fit(src: torch.Tensor, dst: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-    """Weighted least-squares rigid transform (Kabsch) taking ``src`` to ``dst``.
-
-    Args:
-        src, dst: (...,N,3) corresponding points.
-        weights: (...,N) non-negative weights (at least three non-collinear points with
-            positive weight for a unique rotation).
-
-    Returns:
-        (...,3,4) the transform minimising ``sum_j w_j |R src_j + t - dst_j|^2``.
-    """
-    w = weights / weights.sum(-1, keepdim=True).clamp_min(1e-12)
-    mu_s = (w[..., None] * src).sum(-2)
-    mu_d = (w[..., None] * dst).sum(-2)
-    cov = ((dst - mu_d[..., None, :]) * w[..., None]).transpose(-1, -2) @ (src - mu_s[..., None, :])
-    U, _, Vh = torch.linalg.svd(cov)
-    d = torch.det(U @ Vh).sign()
-    d = torch.where(d == 0, torch.ones_like(d), d)
-    D = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], -1))
-    R = U @ D @ Vh
-    t = mu_d - (R @ mu_s[..., None])[..., 0]
-    return torch.cat([R, t[..., None]], -1)
