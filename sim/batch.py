@@ -32,16 +32,21 @@ if TYPE_CHECKING:
 STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
+def ticks_per_step(world: PushWorld) -> int:
+    """Controller ticks in a control step: ``advance`` ticks at every ``ctrl_every``-th
+    physics step of each control step, the first included."""
+    return -(-world.n_substeps // world.ctrl_every)
+
+
 def servo_targets(world: PushWorld, actions: np.ndarray) -> np.ndarray:
     """(K, H * ticks, 4) the joint servo targets at each controller tick of plans ``actions``
     (K,H,2) (pusher velocities, m/s): the pusher's reference point, where the servos point now,
     moved by each tick's commanded velocity, through the arm's closed-form IK, kept inside the
     joint limits (as the controller keeps them)."""
     s = world.scenario
-    ticks = world.n_substeps // world.ctrl_every
     dt = world.ctrl_every * s.action.physics_dt_s
     start = planar_arm_xy(s, world.servo_reference())
-    v = np.repeat(actions, ticks, axis=1)  # (K, H * ticks, 2)
+    v = np.repeat(actions, ticks_per_step(world), axis=1)  # (K, H * ticks, 2)
     path = start + np.cumsum(v * dt, axis=1)  # the reference after each tick
     q = planar_arm_reach(s, path)
     lo, hi = np.array(s.arm.joint_limits_rad).T
@@ -62,7 +67,10 @@ def simulate_plans(world: PushWorld, actions: np.ndarray) -> tuple[np.ndarray, n
     m, d = world.model, world.data
     K, H, _ = actions.shape
     every = world.n_substeps
-    ctrl = np.repeat(servo_targets(world, actions), world.ctrl_every, axis=1)  # per physics step
+    # the target each physics step holds: its control step's latest tick's
+    sub = np.arange(every)
+    tick = np.arange(H)[:, None] * ticks_per_step(world) + sub[None] // world.ctrl_every
+    ctrl = servo_targets(world, actions)[:, tick.ravel()]  # (K, H * every, 4)
     start = np.empty(mujoco.mj_stateSize(m, STATE))
     mujoco.mj_getState(m, d, start, STATE)
     states, _ = mj_rollout.rollout(

@@ -372,7 +372,7 @@ class PushWorld:
         }  # fmt: skip
 
     def restore(self, state: dict) -> None:
-        """Return to a ``snapshot`` of this world or of a ``clone`` of it."""
+        """Return to a ``snapshot`` of this world."""
         d = self.data
         d.qpos[:], d.qvel[:], d.act[:], d.ctrl[:] = (
             state["qpos"],
@@ -383,14 +383,6 @@ class PushWorld:
         d.time, self._q_ref = state["time"], state["q_ref"].copy()
         self._done, self._reason = state["done"], state["reason"]
         mujoco.mj_forward(self.model, d)
-
-    def clone(self) -> PushWorld:
-        """An independent world with the same objects and state (its own model and data)."""
-        other = PushWorld(self.scenario, width=self.camera.width, height=self.camera.height)
-        other.objects = list(self.objects)
-        other._build([(0.0, 0.0, 0.0)] * len(self.objects), settle=False)
-        other.restore(self.snapshot())
-        return other
 
     def _advance(self, action: np.ndarray, n_steps: int) -> None:
         m, d = self.model, self.data
