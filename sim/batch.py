@@ -5,15 +5,17 @@ controller tick, so simulating a batch of candidate plans one control step at a 
 about 2.6 ms a step. Here the controller is replaced by what it tracks: the pusher's exact
 path, integrated from the commanded velocities tick by tick from where the servos point now,
 turned into joint servo targets by the arm's closed-form inverse kinematics
-(:func:`sim.controller.planar_arm_ik`). Those targets are open-loop controls, so every
+(:func:`sim.controller.planar_arm_reach`). Those targets are open-loop controls, so every
 candidate runs in one ``mujoco.rollout`` call on the world's own model (its arm, servos,
 objects, contacts and timestep).
 
 What differs from ``advance``: the controller's QP holds the pusher's height and verticality
 by feedback and keeps the servo targets within ``max_servo_lead_rad`` of the measured angles,
 so a blocked pusher's servos do not wind up; the closed-form targets have neither. In free
-motion and ordinary pushes the two agree to a fraction of a millimetre
-(tests/sim/test_batch.py); a pusher held against a heavy object pushes harder here.
+motion the pusher lands within a fraction of a millimetre of where the controller takes it,
+and a pushed object within about a millimetre, what a nudge of the servos by 0.1 mrad does
+to the simulator itself (tests/sim/test_batch.py); a pusher held against a heavy object
+pushes harder here.
 """
 
 from __future__ import annotations

@@ -415,8 +415,7 @@ class PushWorld:
         unstable = ~(np.isfinite(qpos).all(-1) & np.isfinite(qvel).all(-1))
         unstable |= (np.abs(qvel) > 50.0).any(-1)
         sx, sy = self.scenario.table.size_m
-        off = np.zeros_like(unstable)
-        fast = np.zeros_like(unstable)
+        off, fast = np.zeros_like(unstable), np.zeros_like(unstable)
         for qa, da in zip(self._obj_qpos, self._obj_dof, strict=True):
             x, y, z = qpos[..., qa], qpos[..., qa + 1], qpos[..., qa + 2]
             off |= (np.abs(x) > sx / 2) | (np.abs(y) > sy / 2) | (z < 0)
@@ -440,8 +439,7 @@ class PushWorld:
         lead = qpos.shape[:-1]
         flat = qpos.reshape(-1, qpos.shape[-1])
         d = self.scratch()
-        first = FIRST_OBJECT_PART
-        bodies = self._part_bodies[first : first + len(self.objects)]
+        bodies = self._part_bodies[FIRST_OBJECT_PART : FIRST_OBJECT_PART + len(self.objects)]
         poses = np.empty((len(flat), len(bodies), 3))
         pusher = np.empty((len(flat), 2))
         for i, q in enumerate(flat):
