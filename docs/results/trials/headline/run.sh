@@ -2,7 +2,7 @@
 # The headline table (README): the shipped model and the simulator as the planner's model,
 # under today's planner (the default) and the long one (--preset long), 50 trials per scenario
 # (trial set 2: --seed 0), each run on to 1 cm and 5 deg so that success is measured at every
-# tolerance. About 75 minutes on two cores. Run from the repository's root.
+# tolerance. 73 minutes on two cores. Run from the repository's root.
 set -euo pipefail
 D=docs/results/trials/headline
 run() { se3push trials --n 50 --seed 0 --workers 2 --tolerance precise "$@"; }
