@@ -42,6 +42,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 
 import torch
 
@@ -283,7 +284,7 @@ class Inputs:
     last_action: torch.Tensor
     stage: Stage
 
-    @property
+    @cached_property
     def step_weights(self) -> torch.Tensor:
         """(H,) the square roots of the pose terms' weights per step: running, then terminal."""
         c, a = self.cost.cfg, self.actions

@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 
-LONG = {"horizon_s": 1.2, "knots": 4, "spline": "cubic"}
-"""the long-horizon plan timed: 8 steps of 0.15 s (1.2 s) through 4 cubic knots"""
+LONG = "long"
+"""the preset whose plan is timed as the long one: 8 steps of 0.15 s (1.2 s) through 4 cubic
+knots (its optimiser's settings; the cost is the default's for every plan timed)"""
 
 
-def _states(device: str) -> dict:
+def _states(device: str) -> tuple:
     from planner import plan_state
     from se3push.bench import _bench_state
     from sim import PushWorld
@@ -28,13 +29,12 @@ def _states(device: str) -> dict:
     return scenario, goal, states, {"near": world, "approach": start}
 
 
-def _replan_ms(horizon: dict, skip: bool, *, state, scenario, goal, repeats: int, model,
+def _replan_ms(preset: str, skip: bool, *, state, scenario, goal, repeats: int, model,
                device: str, world=None) -> float:  # fmt: skip
-    """One CEM replan's median (ms): the shipped SE3-Net as the planner rolls it, or, given
-    ``world``, the simulator."""
-    import dataclasses
-
+    """One CEM replan's median (ms) with the optimiser settings of ``preset``: the shipped
+    SE3-Net as the planner rolls it, or, given ``world``, the simulator."""
     from planner import PlanSettings, PushCost, make_dynamics, make_planner
+    from planner.presets import preset_settings
     from se3push.bench import median_seconds
 
     plan = PlanSettings()
@@ -46,7 +46,7 @@ def _replan_ms(horizon: dict, skip: bool, *, state, scenario, goal, repeats: int
                             feedback=plan.rollout.feedback,
                             contact_margin_m=plan.rollout.contact_margin_m)  # fmt: skip
         dyn.skip_out_of_reach = skip
-    cfg = dataclasses.replace(plan.optimiser, **horizon)
+    cfg = preset_settings(preset).optimiser
     planner = make_planner("cem", dyn, PushCost(scenario, goal, plan.cost), scenario, cfg)
     return 1e3 * median_seconds(lambda: planner.plan(state), repeats=repeats, warmup=2)
 
@@ -77,10 +77,10 @@ def bench_horizon(
         timed = {"state": state, "scenario": scenario, "goal": goal, "repeats": repeats,
                  "model": model, "device": device}  # fmt: skip
         out[where] = {
-            "today_3_steps": _replan_ms({}, True, **timed),
+            "today_3_steps": _replan_ms("default", True, **timed),
             "long_full_network": _replan_ms(LONG, False, **timed),
             "long_with_skip": _replan_ms(LONG, True, **timed),
-            "simulator_today_3_steps": _replan_ms({}, True, **timed, world=worlds[where]),
+            "simulator_today_3_steps": _replan_ms("default", True, **timed, world=worlds[where]),
             "simulator_long": _replan_ms(LONG, True, **timed, world=worlds[where]),
         }
     pair = list(run_jobs(_side_by_side, [(repeats, model)] * 2, Backend(workers=2)))
