@@ -12,8 +12,7 @@ import numpy as np
 import torch
 
 from evaluation.study import _moving_windows, _window_states
-from planner.dynamics import PlanState, planar_fit
-from planner.learned import to_world
+from planner.dynamics import PlanState, planar_fit, to_world
 from sim.planar import angle_between_deg
 
 STILL_M = 1e-4

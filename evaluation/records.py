@@ -35,12 +35,19 @@ STEP_S = 0.15
 
 BEFORE = {
     "optimiser": {"horizon_s": round(4 * STEP_S, 9), "knots": 0, "spline": "linear"},
-    "cost": {"w_disturb": 0.0, "shaping_fade": "everywhere", "w_keepout": 0.0, "near_goal_m": 0.0},
+    "cost": {
+        "w_disturb": 0.0,
+        "shaping_fade": "everywhere",
+        "w_keepout": 0.0,
+        "near_goal_m": 0.0,
+        "pre_push": "circle",
+    },
     "rollout": {"feedback": "grid", "contact_margin_m": None},
 }
 """how a record that lacks a setting ran: 4 steps ahead (study and improve runs from before
 they recorded the horizon), a plan of one value per step (no knots); no disturbance term, the
-shaping term faded wherever the pusher was, no keep-out term, neither faded near the goal;
+shaping term faded wherever the pusher was, no keep-out term, neither faded near the goal, the
+pre-push point on the circle about the object;
 predicted clouds fed back on the grid, every predicted motion counted"""
 
 RETIRED = {"motion_gain": "off", "w_edge": 0.0, "rollout_steps": 1, "push_out": False,
@@ -52,6 +59,10 @@ model's first steps; the contact gate measured to the object's points: docs/expe
 
 RETIRED_SETTINGS = (("rollout", "push_out"), ("optimiser", "model_s"), ("rollout", "gate"))
 """retired options that were planning settings of schema 3"""
+
+SINCE_FLAT = {("cost", "pre_push")}
+"""settings added after the last flat (study, improve) run was made: such a run ran them as
+:data:`BEFORE` says"""
 
 FLAT = {
     "horizon": ("optimiser", "horizon"),  # in steps: _horizon_in_seconds
@@ -111,7 +122,7 @@ def migrate_config(meta: dict[str, Any]) -> dict[str, Any]:
             # a flat run could only have lacked the settings it flattened; the rest were the
             # defaults of the time, today's
             flattened = (section, "horizon" if field == "horizon_s" else field) in FLAT.values()
-            if not flat or flattened:
+            if not flat or flattened or (section, field) in SINCE_FLAT:
                 plan[section].setdefault(field, value)
     if flat:
         defaults = asdict(PlanSettings())

@@ -46,12 +46,29 @@ from functools import cached_property
 
 import torch
 
-from planner.dynamics import PlanState, Rollout, segment_distance
+from planner.dynamics import PlanState, Rollout, segment_distance, to_world
 from scenarios import InputError, Scenario
 from sim.planar import wrap_angle
 
 SHAPING_FADES = ("behind", "everywhere")
 """where predicted motion may fade the shaping term (``CostConfig.shaping_fade``)"""
+PRE_PUSHES = ("surface", "circle")
+"""where the pre-push point is (``CostConfig.pre_push``)"""
+PRE_PUSH_CLEARANCE_M = 0.01
+"""the gap a ``surface`` pre-push point leaves between pusher and object (the exploration
+data's pushes start so: ``sim.explore``)"""
+
+
+def far_side(state: PlanState, u: torch.Tensor) -> float:
+    """How far the pushed object reaches from its centre along the world direction ``u`` (2,),
+    as the camera sees it: the furthest of its observed points (its footprint's radius where
+    fewer than 3 are seen)."""
+    seen = state.object_mask & state.valid
+    if int(seen.sum()) < 3:
+        return state.footprint_radius_m
+    points = state.points[:, seen].T
+    xy = to_world(state.T_world_cam.to(points), points)[:, :2]
+    return float(((xy - state.object_pose[:2].to(xy)) @ u.to(xy)).max().clamp_min(0.0))
 
 
 @dataclass(frozen=True)
@@ -84,6 +101,10 @@ class CostConfig:
     shaping_fade: str = "behind"
     """where predicted motion fades the shaping term: ``behind`` (only once the pusher is
     behind the object) or ``everywhere`` (an earlier planner's)"""
+    pre_push: str = "surface"
+    """where the pusher goes to push from behind (the pre-push point): ``surface``, 1 cm clear
+    of the object's far side as the camera sees it, or ``circle``, 2 cm beyond the circle that
+    holds its footprint (earlier planners': from there a short plan cannot reach the object)"""
     w_action: float = 0.02
     """weight of |a|^2 / bound^2"""
     w_smooth: float = 0.05
@@ -112,8 +133,12 @@ class CostConfig:
             raise InputError(
                 f"cost.shaping_fade is one of {', '.join(SHAPING_FADES)}, got {self.shaping_fade!r}"
             )
+        if self.pre_push not in PRE_PUSHES:
+            raise InputError(
+                f"cost.pre_push is one of {', '.join(PRE_PUSHES)}, got {self.pre_push!r}"
+            )
         for name, value in vars(self).items():
-            if name == "shaping_fade":
+            if name in ("shaping_fade", "pre_push"):
                 continue
             if not (math.isfinite(value) and value >= 0):
                 raise InputError(f"cost.{name} must be a finite number >= 0, got {value}")
@@ -154,11 +179,16 @@ class PushCost:
         self.half = torch.tensor(scenario.table.size_m) / 2 - cfg.workspace_margin_m
 
     def pre_push_point(self, state: PlanState) -> torch.Tensor:
-        """Where the pusher should be to push the object toward the goal: behind it."""
+        """Where the pusher should be to push the object toward the goal: behind it, where the
+        push starts (``pre_push``: just clear of the object's far side as the camera sees it,
+        or 2 cm beyond the circle that holds its footprint)."""
         obj = state.object_pose[:2]
         d = self.goal[:2] - obj
         d = d / d.norm().clamp_min(1e-6)
-        back = state.footprint_radius_m + 0.02
+        if self.cfg.pre_push == "circle":
+            back = state.footprint_radius_m + 0.02
+        else:
+            back = far_side(state, -d) + self.pusher_radius + PRE_PUSH_CLEARANCE_M
         return obj - back * d
 
     def _angle_from_behind(self, state: PlanState) -> tuple[torch.Tensor, float]:

@@ -124,6 +124,11 @@ def segment_distance(p: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> torch
     return ((a + t[:, None] * ab - p) ** 2).sum(-1).add(1e-12).sqrt()
 
 
+def to_world(T_world_cam: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Camera-frame points (...,N,3) in the world frame."""
+    return points @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
+
+
 class Dynamics(Protocol):
     """Anything that predicts how the object moves under candidate pushes."""
 

@@ -17,6 +17,7 @@ from planner.dynamics import (
     integrate_pusher,
     planar_fit,
     segment_distance,
+    to_world,
 )
 from scenarios import InputError, Scenario
 from se3net.data import subsample
@@ -223,11 +224,6 @@ class LearnedDynamics:
             torch.stack(predicted, 1).to(caller) if clouds else None,
             other_poses=others,
         )
-
-
-def to_world(T_world_cam: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """Camera-frame points (...,N,3) in the world frame."""
-    return points @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
 
 
 class EnsembleDynamics:

@@ -41,8 +41,7 @@ import torch  # noqa: E402
 
 import planner.loop as loop  # noqa: E402
 from evaluation.trials import draw_trial  # noqa: E402
-from planner.dynamics import PlanState
-from planner.learned import to_world  # noqa: E402
+from planner.dynamics import PlanState, to_world  # noqa: E402
 from planner.observe import plan_state  # noqa: E402
 from scenarios import load_scenario  # noqa: E402
 from se3net.data import subsample  # noqa: E402

@@ -45,16 +45,19 @@ def _norm(plan):
 @pytest.mark.parametrize(
     ("folder", "preset"),
     [
-        ("default_near_goal_single_box", "default"),
-        ("default_keepout_multi_object", "keepout"),
-        ("default_horizon3_heldout_objects", "horizon3"),
-        ("oracle_fade_behind_single_box", "fade_behind"),
-        ("default_rendered_gate_multi_object", "rendered_gate"),
-        ("default_single_box", "grid"),
+        ("headline/default_surface_single_box", "default"),
+        ("headline/oracle_heldout_objects", "circle"),
+        ("headline/default_long_multi_object", "long"),
+        ("final/default_near_goal_single_box", "circle"),
+        ("final/default_keepout_multi_object", "keepout"),
+        ("final/default_horizon3_heldout_objects", "horizon3"),
+        ("final/oracle_fade_behind_single_box", "fade_behind"),
+        ("final/default_rendered_gate_multi_object", "rendered_gate"),
+        ("final/default_single_box", "grid"),
     ],
 )
 def test_the_records_of_an_earlier_planner_ran_its_preset(folder, preset):
-    config = json.loads((ROOT / "docs/results/trials/final" / folder / "config.json").read_text())
+    config = json.loads((ROOT / "docs/results/trials" / folder / "config.json").read_text())
     assert _norm(migrate_config(config)["plan"]) == _norm(settings_dict(PRESETS[preset]))
 
 

@@ -206,7 +206,7 @@ def test_left_behind_counts_the_points_a_torn_prediction_does_not_carry(study_da
     (nothing moved) has no step to tear."""
     from evaluation.deflection import left_behind
     from evaluation.study import _moving_windows, _window_states
-    from planner.learned import to_world
+    from planner.dynamics import to_world
     from se3net.data import PushDataset
 
     ds = PushDataset(study_data, split="all", horizon=1)

@@ -70,7 +70,7 @@ def test_compare_pairs_every_tolerance_both_folders_measured(tmp_path, capsys):
 
 
 def test_the_loop_runs_on_to_the_tolerance_asked_for():
-    goal = _nearby_goal()
+    goal = _nearby_goal(0.03)  # the tight push stops between 1 and 2 cm of it
     tight = run_push(PushConfig(goal=goal, scenario="tiny", model="oracle", max_steps=30))
     precise = run_push(PushConfig(goal=goal, scenario="tiny", model="oracle", max_steps=30,
                                   tolerance="precise"))  # fmt: skip

@@ -261,3 +261,34 @@ def test_the_cost_terms_sum_to_the_total_and_a_plan_reports_them():
     _, info = planner.plan(state)
     assert set(info.cost_terms) == set(terms)
     assert sum(info.cost_terms.values()) == pytest.approx(info.cost, rel=1e-5)
+
+
+@pytest.mark.parametrize("scenario_name", ["single_box", "heldout_objects"])
+def test_the_surface_pre_push_point_is_just_clear_of_the_object_s_far_side(scenario_name):
+    """The pre-push point (``pre_push`` surface) leaves at most a centimetre between the pusher
+    and the object's true far side, and never less than nothing, for every goal direction; the
+    circle's point (the earlier planners') leaves more, most of all for a T."""
+    from planner.observe import plan_state
+
+    scenario = load_scenario(scenario_name)
+    world = PushWorld(scenario)
+    obs = world.reset(3)
+    spec, state = world.objects[0], plan_state(obs, world)
+    radius = scenario.arm.pusher_radius_m
+    surface = PushCost(scenario, torch.zeros(3), CostConfig(pre_push="surface"))
+    circle = PushCost(scenario, torch.zeros(3), CostConfig(pre_push="circle"))
+    x, y, yaw = obs.object_poses[0]
+    gaps, circle_gaps = [], []
+    for a in np.linspace(-math.pi, math.pi, 12, endpoint=False):
+        goal = torch.tensor([x + 0.1 * math.cos(a), y + 0.1 * math.sin(a), 0.0])
+        surface.goal, circle.goal = goal, goal
+        back = -np.array([math.cos(a), math.sin(a)])  # from the centre toward the pre-push point
+        in_object = [back[0] * math.cos(yaw) + back[1] * math.sin(yaw),
+                     -back[0] * math.sin(yaw) + back[1] * math.cos(yaw)]  # fmt: skip
+        face = spec.support_m(np.array(in_object))
+        for cost, out in ((surface, gaps), (circle, circle_gaps)):
+            point = cost.pre_push_point(state).numpy() - obs.object_poses[0, :2]
+            assert abs(point @ np.array([-back[1], back[0]])) < 1e-6  # on the line to the goal
+            out.append(point @ back - face - radius)  # the gap between pusher and object
+    assert min(gaps) > 0.002 and max(gaps) < 0.011  # measured: 2.4 to 9.9 mm
+    assert np.median(circle_gaps) > np.median(gaps) + 0.003  # measured: 3.7 and 11 mm more

@@ -105,6 +105,7 @@ def test_each_preset_is_the_one_before_with_one_thing_taken_away():
         for a, b in zip(order, order[1:], strict=False)
     ]
     assert changed == [
+        ["cost.pre_push"],
         ["cost.near_goal_m"],
         ["cost.w_keepout"],
         ["optimiser.horizon_s"],
