@@ -101,10 +101,6 @@ class CostConfig:
     shaping_fade: str = "behind"
     """where predicted motion fades the shaping term: ``behind`` (only once the pusher is
     behind the object) or ``everywhere`` (an earlier planner's)"""
-    turn_push: float = 0.0
-    """the pre-push point moves off the object's centre line, to the side from which a push
-    turns it toward the goal's yaw, by this share of the object's half-width there, in
-    proportion to the turn still to make (all of it from 90 deg); 0: through the centre"""
     pre_push: str = "surface"
     """where the pusher goes to push from behind (the pre-push point): ``surface``, 1 cm clear
     of the object's far side as the camera sees it, or ``circle``, 2 cm beyond the circle that
@@ -193,16 +189,7 @@ class PushCost:
             back = state.footprint_radius_m + 0.02
         else:
             back = far_side(state, -d) + self.pusher_radius + PRE_PUSH_CLEARANCE_M
-        point = obj - back * d
-        if self.cfg.turn_push > 0 and state.yaw_period_rad is not None:
-            # a push along d at a point left of the centre line turns the object clockwise
-            turn = float(wrap_angle(self.goal[2] - state.object_pose[2].to(self.goal),
-                                    state.yaw_period_rad))  # fmt: skip
-            side = torch.stack([-d[1], d[0]])  # d turned a quarter left
-            share = -max(-1.0, min(1.0, turn / (math.pi / 2)))
-            reach = far_side(state, side if share > 0 else -side)
-            point = point + side * (self.cfg.turn_push * share * reach)
-        return point
+        return obj - back * d
 
     def _angle_from_behind(self, state: PlanState) -> tuple[torch.Tensor, float]:
         """The unit vector (2,) from the object's centre toward the pre-push point, and the
