@@ -1,4 +1,4 @@
-"""Named planners: today's default, ``long`` (the planner the simulator needs), and the earlier
+"""Named planners: today's default, ``long`` (1.2 s ahead), and the earlier
 ones that committed records were made with.
 
 A record folder made with an earlier planner is reproduced with ``--preset NAME`` (its

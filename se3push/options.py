@@ -113,8 +113,8 @@ def planning_options(s: argparse.ArgumentParser) -> None:
 
     s.add_argument("--planner", default=None, help="optimiser: cem, mppi, grad or sqp")
     s.add_argument("--preset", default=None, choices=list(PRESETS),
-                   help="a named planner: an earlier one, or long (1.2 s ahead, the "
-                   "simulator's); default: today's")  # fmt: skip
+                   help="a named planner: an earlier one, or long (1.2 s ahead); "
+                   "default: today's")  # fmt: skip
     s.add_argument("--config", default=None, metavar="FILE.toml",
                    help="planning settings from a TOML file (`se3push config`)")  # fmt: skip
     s.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="assign",
