@@ -104,7 +104,7 @@ class CostConfig:
     pre_push: str = "surface"
     """where the pusher goes to push from behind (the pre-push point): ``surface``, 1 cm clear
     of the object's far side as the camera sees it, or ``circle``, 2 cm beyond the circle that
-    holds its footprint (earlier planners': from there a short plan cannot reach the object)"""
+    holds its footprint (earlier planners': from there a 0.45 s plan often moves nothing)"""
     w_action: float = 0.02
     """weight of |a|^2 / bound^2"""
     w_smooth: float = 0.05

@@ -56,8 +56,7 @@ holds the object's footprint (the default before the surface's, docs/planner.md;
 term faded by predicted motion wherever the pusher is; ``grid``, predicted clouds fed back on
 the observed grid and every predicted motion counted (no contact gate); and ``long``,
 ``circle`` looking 1.2 s ahead through 4 cubic knots, without the keep-out term and the fade
-near the goal: the planner with which the simulator as model succeeds best (docs/planner.md;
-measured with the circle's pre-push point, and so kept)"""
+near the goal (measured with the circle's pre-push point, and so kept; docs/planner.md)"""
 
 
 def preset_settings(name: str) -> PlanSettings:
