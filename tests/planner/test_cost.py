@@ -296,9 +296,9 @@ def test_the_surface_pre_push_point_is_just_clear_of_the_object_s_far_side(scena
 
 def test_from_the_surface_pre_push_point_a_short_push_moves_the_object():
     """Why the pre-push point is at the far side: a 0.45 s push toward the goal at half speed
-    (what iCEM samples about a still plan reach) from it moves every held-out object, in the
-    simulator; from the circle's point (the earlier planners') most of them do not move, so
-    to an exact model no short plan from there is worth leaving it for."""
+    (about as fast as the pushes iCEM samples about a still plan) moves every held-out object
+    from it, in the simulator; from the circle's point (the earlier planners') most of them
+    do not move, so to an exact model no such plan is worth leaving that point for."""
     from planner.dynamics import make_dynamics
     from planner.observe import plan_state
 
