@@ -191,34 +191,14 @@ class PushCost:
             back = far_side(state, -d) + self.pusher_radius + PRE_PUSH_CLEARANCE_M
         return obj - back * d
 
-    def _angle_from_behind(self, state: PlanState) -> tuple[torch.Tensor, float]:
-        """The unit vector (2,) from the object's centre toward the pre-push point, and the
-        pusher's angle (rad, signed) from it about the object's centre: 0 straight behind,
-        +-pi on the goal's side."""
-        obj = state.object_pose[:2]
-        behind = self.pre_push_point(state) - obj
-        behind = behind / behind.norm().clamp_min(1e-9)
-        rel = state.pusher_xy.to(obj) - obj
-        phi = math.atan2(float(behind[0] * rel[1] - behind[1] * rel[0]), float(behind @ rel))
-        return behind, phi
-
     def is_behind(self, state: PlanState) -> bool:
         """Whether the pusher is within ``behind_deg`` of straight behind the object."""
-        return abs(self._angle_from_behind(state)[1]) <= math.radians(self.cfg.behind_deg)
+        return self.stage(state).behind
 
     def shaping_target(self, state: PlanState) -> torch.Tensor:
         """Where the shaping term draws the pusher: the pre-push point when the pusher is
         already behind the object, else a waypoint a step round the object toward it."""
-        c = self.cfg
-        obj = state.object_pose[:2]
-        behind, phi = self._angle_from_behind(state)
-        if abs(phi) <= math.radians(c.behind_deg):
-            return self.pre_push_point(state)
-        step = phi - math.copysign(math.radians(c.round_step_deg), phi)
-        radius = state.footprint_radius_m + self.pusher_radius + c.round_clearance_m
-        cs, sn = math.cos(step), math.sin(step)
-        way = torch.stack([cs * behind[0] - sn * behind[1], sn * behind[0] + cs * behind[1]])
-        return obj + radius * way
+        return self.stage(state).target
 
     def near_goal_fade(self, state: PlanState) -> float:
         """The factor on the shaping and keep-out terms: 1 while the object is ``near_goal_m``
@@ -229,8 +209,28 @@ class PushCost:
         return min(1.0, float((self.goal[:2] - state.object_pose[:2].to(self.goal)).norm()) / near)
 
     def stage(self, state: PlanState) -> Stage:
-        """Where the push is (:class:`Stage`): the one place the cost changes with the state."""
-        return Stage(self.is_behind(state), self.near_goal_fade(state), self.shaping_target(state))
+        """Where the push is (:class:`Stage`): the one place the cost changes with the state.
+
+        The pusher's angle about the object's centre from the pre-push point (0 straight
+        behind, +-pi on the goal's side) decides whether it is behind; if not, the shaping
+        target is a waypoint ``round_step_deg`` further round a circle about the object."""
+        c = self.cfg
+        obj = state.object_pose[:2]
+        point = self.pre_push_point(state)
+        behind = point - obj
+        behind = behind / behind.norm().clamp_min(1e-9)
+        rel = state.pusher_xy.to(obj) - obj
+        phi = math.atan2(float(behind[0] * rel[1] - behind[1] * rel[0]), float(behind @ rel))
+        is_behind = abs(phi) <= math.radians(c.behind_deg)
+        if is_behind:
+            target = point
+        else:
+            step = phi - math.copysign(math.radians(c.round_step_deg), phi)
+            radius = state.footprint_radius_m + self.pusher_radius + c.round_clearance_m
+            cs, sn = math.cos(step), math.sin(step)
+            way = torch.stack([cs * behind[0] - sn * behind[1], sn * behind[0] + cs * behind[1]])
+            target = obj + radius * way
+        return Stage(is_behind, self.near_goal_fade(state), target)
 
     def residual_terms(
         self,
