@@ -54,6 +54,8 @@ SHAPING_FADES = ("behind", "everywhere")
 """where predicted motion may fade the shaping term (``CostConfig.shaping_fade``)"""
 PRE_PUSHES = ("surface", "circle")
 """where the pre-push point is (``CostConfig.pre_push``)"""
+SHAPING_AT = ("last", "every")
+"""which steps of a plan the shaping term charges (``CostConfig.shaping_at``)"""
 PRE_PUSH_CLEARANCE_M = 0.01
 """the gap a ``surface`` pre-push point leaves between pusher and object (the exploration
 data's pushes start so: ``sim.explore``)"""
@@ -105,6 +107,10 @@ class CostConfig:
     """where the pusher goes to push from behind (the pre-push point): ``surface``, 1 cm clear
     of the object's far side as the camera sees it, or ``circle``, 2 cm beyond the circle that
     holds its footprint (earlier planners': from there a 0.45 s plan often moves nothing)"""
+    shaping_at: str = "last"
+    """which steps the shaping term charges: the ``last`` (where the pusher ends the plan), or
+    ``every`` step, weighted as the pose terms are (running, then terminal), so that a long
+    plan that reaches the target later costs more than one that reaches it now"""
     w_action: float = 0.02
     """weight of |a|^2 / bound^2"""
     w_smooth: float = 0.05
@@ -137,8 +143,12 @@ class CostConfig:
             raise InputError(
                 f"cost.pre_push is one of {', '.join(PRE_PUSHES)}, got {self.pre_push!r}"
             )
+        if self.shaping_at not in SHAPING_AT:
+            raise InputError(
+                f"cost.shaping_at is one of {', '.join(SHAPING_AT)}, got {self.shaping_at!r}"
+            )
         for name, value in vars(self).items():
-            if name in ("shaping_fade", "pre_push"):
+            if name in ("shaping_fade", "pre_push", "shaping_at"):
                 continue
             if not (math.isfinite(value) and value >= 0):
                 raise InputError(f"cost.{name} must be a finite number >= 0, got {value}")
@@ -339,14 +349,18 @@ def _yaw(x: Inputs, w: float) -> torch.Tensor | None:
 
 def _shaping(x: Inputs, w: float) -> torch.Tensor:
     c, a = x.cost.cfg, x.actions
-    moved_sq = ((x.rollout.object_poses[:, -1, :2] - x.state.object_pose[:2].to(a)) ** 2).sum(-1)
+    steps = slice(-1, None) if c.shaping_at == "last" else slice(None)
+    moved_sq = ((x.rollout.object_poses[:, steps, :2] - x.state.object_pose[:2].to(a)) ** 2).sum(-1)
     # sqrt of the gate exp(-moved^2 / m^2), written without sqrt (its gradient at 0 is NaN);
     # until the pusher is behind the object, predicted motion does not fade the term
     sqrt_gate = torch.exp(-0.5 * moved_sq / c.moving_m**2)
     if c.shaping_fade == "behind" and not x.stage.behind:
         sqrt_gate = torch.ones_like(sqrt_gate)
-    dist = (x.rollout.pusher_xy[:, -1] - x.stage.target.to(a)) / c.shaping_scale_m
-    return w * x.stage.approach * sqrt_gate[:, None] * dist
+    dist = (x.rollout.pusher_xy[:, steps] - x.stage.target.to(a)) / c.shaping_scale_m
+    r = w * x.stage.approach * sqrt_gate[..., None] * dist
+    if c.shaping_at == "every":
+        r = r * x.step_weights[None, :, None]
+    return r.flatten(1)
 
 
 def _action(x: Inputs, w: float) -> torch.Tensor:
@@ -409,7 +423,8 @@ TERMS: tuple[Term, ...] = (
          "the object's position error to the goal, per step (w_running, the last w_terminal)"),
     Term("yaw", _yaw, "w_yaw", "its symmetry-aware yaw error, likewise (objects with a heading)"),
     Term("shaping", _shaping, "w_shaping",
-         "the pusher's distance, at the last step, to the way round to behind the object"),
+         "the pusher's distance, at the last step (or every step), to the way round to behind "
+         "the object"),
     Term("action", _action, "w_action", "the actions' size"),
     Term("smooth", _smooth, "w_smooth",
          "the actions' change from step to step (from the last executed action)"),

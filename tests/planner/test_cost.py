@@ -319,3 +319,46 @@ def test_from_the_surface_pre_push_point_a_short_push_moves_the_object():
             out.append(float((rollout.object_poses[0, -1, :2] - state.object_pose[:2]).norm()))
     assert min(moved["surface"]) > 0.002  # measured: 2.4 to 17 mm
     assert sum(m < 1e-4 for m in moved["circle"]) >= 3  # measured: 3 of 4 did not move
+
+
+def test_charged_at_every_step_the_shaping_term_makes_a_long_plan_head_off_now():
+    """The pusher behind the object, 9 cm from the pre-push point, nothing pushed on the way, a
+    1.2 s plan (8 steps through 4 cubic knots). Charged at the last step only, a plan that
+    waits 4 steps and then goes costs what one that goes now does, and the receding-horizon
+    loop crawls: each replan puts the going off again. Charged at every step, waiting costs
+    more, and the pusher gets there."""
+    import dataclasses
+
+    from planner import PlannerConfig, make_planner
+    from planner.dynamics import NoMotionDynamics
+    from tests.planner.toy import toy_state
+
+    scenario = load_scenario("single_box")
+    dt = scenario.action.dt_control_s
+    start = dataclasses.replace(toy_state(), pusher_xy=torch.tensor([-0.10, 0.05]))
+    dyn = NoMotionDynamics(scenario)
+    left = {}
+    for at in ("last", "every"):
+        cost = PushCost(scenario, torch.tensor([0.12, 0.0, 0.0]), CostConfig(shaping_at=at))
+        assert cost.is_behind(start)
+        target = cost.shaping_target(start)
+        gap = target - start.pusher_xy
+        now = torch.cat([(gap / (4 * dt)).expand(4, 2), torch.zeros(4, 2)])
+        U = torch.stack([now, now.flip(0)])  # go now, or wait and then go: the same end
+        terms = cost.cost_terms(start, dyn.rollout(start, U), U, last_action=torch.zeros(2))
+        go_now, go_later = terms["shaping"].tolist()
+        if at == "last":
+            assert go_now == pytest.approx(go_later, abs=1e-6)
+        else:
+            assert go_later > 2 * go_now
+        cfg = PlannerConfig(horizon_s=1.2, knots=4, spline="cubic")
+        planner = make_planner("cem", dyn, cost, scenario, cfg)
+        state = start
+        for _ in range(4):  # 0.6 s of the loop: the pusher moves as commanded
+            action, _ = planner.plan(state)
+            state = dataclasses.replace(
+                state, pusher_xy=state.pusher_xy + dt * torch.as_tensor(action).float()
+            )
+        left[at] = float((state.pusher_xy - target).norm())
+    # 9.3 cm to go: 7.6 cm are left after 0.6 s charged at the last step, 1.9 cm at every step
+    assert left["last"] > 0.065 and left["every"] < 0.025, left
