@@ -31,10 +31,10 @@ HORIZON3 = _before(KEEPOUT, cost={"w_keepout": 0.0})
 FADE_BEHIND = _before(HORIZON3, optimiser={"horizon_s": 0.6})
 RENDERED_GATE = _before(FADE_BEHIND, cost={"shaping_fade": "everywhere"})
 GRID = replace(RENDERED_GATE, rollout=RolloutConfig(feedback="grid", contact_margin_m=None))
-LONG = replace(
-    CIRCLE,
-    optimiser=replace(CIRCLE.optimiser, horizon_s=1.2, knots=4, spline="cubic"),
-    cost=replace(CIRCLE.cost, w_keepout=0.0, near_goal_m=0.0),
+LONG = _before(
+    DEFAULT,
+    optimiser={"horizon_s": 1.2, "knots": 4, "spline": "cubic"},
+    cost={"shaping_at": "every"},
 )
 
 PRESETS: dict[str, PlanSettings] = {
@@ -54,9 +54,12 @@ holds the object's footprint (the default before the surface's, docs/planner.md;
 ``keepout``, the keep-out term not faded near the goal;
 ``horizon3``, no keep-out term; ``fade_behind``, 4 steps ahead; ``rendered_gate``, the shaping
 term faded by predicted motion wherever the pusher is; ``grid``, predicted clouds fed back on
-the observed grid and every predicted motion counted (no contact gate); and ``long``,
-``circle`` looking 1.2 s ahead through 4 cubic knots, without the keep-out term and the fade
-near the goal (measured with the circle's pre-push point, and so kept; docs/planner.md)"""
+the observed grid and every predicted motion counted (no contact gate); and ``long``, today's
+looking 1.2 s ahead through 4 cubic knots, with the shaping term charged at every step of the
+plan (at its last only, a long plan puts off going round the object: docs/planner.md). The
+``long`` of the headline's ``*_long_*`` folders was ``circle`` looking 1.2 s ahead through the
+same knots without the keep-out term and the fade near the goal (their ``run.sh`` spells it
+out)"""
 
 
 def preset_settings(name: str) -> PlanSettings:

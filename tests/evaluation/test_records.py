@@ -47,7 +47,7 @@ def _norm(plan):
     [
         ("headline/default_surface_single_box", "default"),
         ("headline/oracle_heldout_objects", "circle"),
-        ("headline/default_long_multi_object", "long"),
+        ("headline/default_h12_multi_object", "long"),
         ("final/default_near_goal_single_box", "circle"),
         ("final/default_keepout_multi_object", "keepout"),
         ("final/default_horizon3_heldout_objects", "horizon3"),

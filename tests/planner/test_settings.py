@@ -54,8 +54,10 @@ def test_later_sources_override_earlier_ones(tmp_path):
         ("[cost]\nw_foo = 1\n", "unknown setting 'cost.w_foo' in"),
         ("horizon = 3\n", "unknown setting 'horizon' in"),
         ("[optimiser]\nknots = 2.5\n", "setting optimiser.knots must be int, got 2.5"),
-        ("[optimiser]\nhorizon = 8\n", "setting 'optimiser.horizon' in .*bad.toml is now "
-                                         "optimiser.horizon_s, in seconds"),
+        (
+            "[optimiser]\nhorizon = 8\n",
+            "setting 'optimiser.horizon' in .*bad.toml is now optimiser.horizon_s, in seconds",
+        ),
         ("[cost]\nshaping_fade = 3\n", "setting cost.shaping_fade must be str, got 3"),
         ('[cost]\npre_push = "face"\n', "cost.pre_push is one of surface, circle, got 'face'"),
         ('[rollout]\ncontact_margin_m = "1cm"\n', "must be off or float, got '1cm'"),
@@ -113,3 +115,7 @@ def test_each_preset_is_the_one_before_with_one_thing_taken_away():
         ["cost.shaping_fade"],
         ["rollout.contact_margin_m", "rollout.feedback"],
     ]
+    # the long planner is today's looking further ahead, with the shaping charged at every step
+    assert sorted(
+        k for k, v in flat(PRESETS["long"]).items() if flat(PRESETS["default"])[k] != v
+    ) == ["cost.shaping_at", "optimiser.horizon_s", "optimiser.knots", "optimiser.spline"]
