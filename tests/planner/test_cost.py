@@ -321,12 +321,13 @@ def test_from_the_surface_pre_push_point_a_short_push_moves_the_object():
     assert sum(m < 1e-4 for m in moved["circle"]) >= 3  # measured: 3 of 4 did not move
 
 
-def test_charged_at_every_step_the_shaping_term_makes_a_long_plan_head_off_now():
+@pytest.mark.parametrize("optimiser", ["cem", "mppi", "grad", "sqp"])
+def test_charged_at_every_step_the_shaping_term_makes_a_long_plan_head_off_now(optimiser):
     """The pusher behind the object, 9 cm from the pre-push point, nothing pushed on the way, a
     1.2 s plan (8 steps through 4 cubic knots). Charged at the last step only, a plan that
     waits 4 steps and then goes costs what one that goes now does, and the receding-horizon
     loop crawls: each replan puts the going off again. Charged at every step, waiting costs
-    more, and the pusher gets there."""
+    more, and the pusher gets there, with every optimiser."""
     import dataclasses
 
     from planner import PlannerConfig, make_planner
@@ -352,7 +353,7 @@ def test_charged_at_every_step_the_shaping_term_makes_a_long_plan_head_off_now()
         else:
             assert go_later > 2 * go_now
         cfg = PlannerConfig(horizon_s=1.2, knots=4, spline="cubic")
-        planner = make_planner("cem", dyn, cost, scenario, cfg)
+        planner = make_planner(optimiser, dyn, cost, scenario, cfg)
         state = start
         for _ in range(4):  # 0.6 s of the loop: the pusher moves as commanded
             action, _ = planner.plan(state)
@@ -360,5 +361,7 @@ def test_charged_at_every_step_the_shaping_term_makes_a_long_plan_head_off_now()
                 state, pusher_xy=state.pusher_xy + dt * torch.as_tensor(action).float()
             )
         left[at] = float((state.pusher_xy - target).norm())
-    # 9.3 cm to go: 7.6 cm are left after 0.6 s charged at the last step, 1.9 cm at every step
-    assert left["last"] > 0.065 and left["every"] < 0.025, left
+    # 9.3 cm to go: after 0.6 s, 6.0-7.6 cm are left charged at the last step (sqp and mppi
+    # 6.0, grad 6.9, cem 7.6), 0.3-1.9 cm charged at every step (sqp 0.3, grad 0.5, mppi 1.3,
+    # cem 1.9)
+    assert left["last"] > 0.055 and left["every"] < 0.025, left
