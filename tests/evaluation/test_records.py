@@ -61,6 +61,28 @@ def test_the_records_of_an_earlier_planner_ran_its_preset(folder, preset):
     assert _norm(migrate_config(config)["plan"]) == _norm(settings_dict(PRESETS[preset]))
 
 
+@pytest.mark.parametrize("model", ["default", "oracle"])
+def test_the_earlier_long_records_ran_the_flags_their_script_gives(model):
+    """The headline's ``*_long_*`` folders were made by ``--preset long`` before the preset
+    became today's 1.2 s plan; ``run.sh`` now spells that planner out (``OLD_LONG``), and its
+    flags give the settings the records ran."""
+    import shlex
+
+    from planner.settings import resolve_settings
+
+    script = (ROOT / "docs/results/trials/headline/run.sh").read_text()
+    line = next(x for x in script.splitlines() if x.startswith("OLD_LONG="))
+    words = shlex.split(shlex.split(line.partition("=")[2])[0])
+    preset = words[words.index("--preset") + 1]
+    sets = [words[i + 1] for i, w in enumerate(words) if w == "--set"]
+    settings = resolve_settings(preset=preset, assignments=sets)
+    for s in ("single_box", "multi_object", "heldout_objects"):
+        folder = ROOT / f"docs/results/trials/headline/{model}_long_{s}"
+        config = json.loads((folder / "config.json").read_text())
+        assert _norm(migrate_config(config)["plan"]) == _norm(settings_dict(settings))
+    assert settings != PRESETS["long"]
+
+
 def test_a_schema_1_folder_continues_under_its_preset_with_the_same_records(tmp_path):
     """A folder written as the code before the settings object wrote it (the horizon3 planner,
     its settings flat and nested as then) is extended by ``--preset horizon3``; its first trial,

@@ -5,7 +5,8 @@
 # the shipped model and the simulator on trial set 2 (--seed 0), 50 trials per scenario, run on
 # to 1 cm and 5 deg: paired with the default_surface_* and oracle_surface_* folders beside it
 # (compare.sh). Two queues of one worker each, side by side: 48 minutes on two cores (the last
-# set was moved to its own run, two workers, when the other queue had ended).
+# set was finished by a second run with --workers 2 once the other queue had ended; the
+# records are the same for any number of workers).
 # Run from the repository's root.
 set -euo pipefail
 D=docs/results/trials/headline
