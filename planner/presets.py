@@ -55,8 +55,8 @@ holds the object's footprint (the default before the surface's, docs/planner.md;
 ``horizon3``, no keep-out term; ``fade_behind``, 4 steps ahead; ``rendered_gate``, the shaping
 term faded by predicted motion wherever the pusher is; ``grid``, predicted clouds fed back on
 the observed grid and every predicted motion counted (no contact gate); and ``long``, today's
-planner looking 1.2 s ahead through 4 cubic knots, with the shaping term charged at every step of the
-plan (at its last only, a long plan puts off going round the object: docs/planner.md). The
+planner looking 1.2 s ahead through 4 cubic knots, with the shaping term charged at every step
+of the plan (at its last only, a long plan puts off going round the object: docs/planner.md). The
 ``long`` of the headline's ``*_long_*`` folders was ``circle`` looking 1.2 s ahead through the
 same knots without the keep-out term and the fade near the goal (their ``run.sh`` spells it
 out)"""
