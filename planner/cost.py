@@ -56,6 +56,8 @@ PRE_PUSHES = ("surface", "circle")
 """where the pre-push point is (``CostConfig.pre_push``)"""
 SHAPING_AT = ("last", "every")
 """which steps of a plan the shaping term charges (``CostConfig.shaping_at``)"""
+CHOICES = {"shaping_fade": SHAPING_FADES, "pre_push": PRE_PUSHES, "shaping_at": SHAPING_AT}
+"""the ``CostConfig`` settings that name a choice, and their choices (the rest are numbers)"""
 PRE_PUSH_CLEARANCE_M = 0.01
 """the gap a ``surface`` pre-push point leaves between pusher and object (the exploration
 data's pushes start so: ``sim.explore``)"""
@@ -135,22 +137,13 @@ class CostConfig:
     proportion to the object's distance from it (0: they never fade)"""
 
     def __post_init__(self) -> None:
-        if self.shaping_fade not in SHAPING_FADES:
-            raise InputError(
-                f"cost.shaping_fade is one of {', '.join(SHAPING_FADES)}, got {self.shaping_fade!r}"
-            )
-        if self.pre_push not in PRE_PUSHES:
-            raise InputError(
-                f"cost.pre_push is one of {', '.join(PRE_PUSHES)}, got {self.pre_push!r}"
-            )
-        if self.shaping_at not in SHAPING_AT:
-            raise InputError(
-                f"cost.shaping_at is one of {', '.join(SHAPING_AT)}, got {self.shaping_at!r}"
-            )
         for name, value in vars(self).items():
-            if name in ("shaping_fade", "pre_push", "shaping_at"):
-                continue
-            if not (math.isfinite(value) and value >= 0):
+            if name in CHOICES:
+                if value not in CHOICES[name]:
+                    raise InputError(
+                        f"cost.{name} is one of {', '.join(CHOICES[name])}, got {value!r}"
+                    )
+            elif not (math.isfinite(value) and value >= 0):
                 raise InputError(f"cost.{name} must be a finite number >= 0, got {value}")
         for name in ("pos_scale_m", "yaw_scale_rad", "shaping_scale_m", "moving_m"):
             if not getattr(self, name) > 0:  # the scales divide
