@@ -15,7 +15,7 @@ import numpy as np
 
 LONG = "long"
 """the preset whose plan is timed as the long one: 8 steps of 0.15 s (1.2 s) through 4 cubic
-knots (its optimiser's settings; the cost is the default's for every plan timed)"""
+knots, the shaping term charged at every step"""
 
 
 def _states(device: str) -> tuple:
@@ -31,13 +31,13 @@ def _states(device: str) -> tuple:
 
 def _replan_ms(preset: str, skip: bool, *, state, scenario, goal, repeats: int, model,
                device: str, world=None) -> float:  # fmt: skip
-    """One CEM replan's median (ms) with the optimiser settings of ``preset``: the shipped
+    """One CEM replan's median (ms) with the settings of ``preset``: the shipped
     SE3-Net as the planner rolls it, or, given ``world``, the simulator."""
-    from planner import PlanSettings, PushCost, make_dynamics, make_planner
+    from planner import PushCost, make_dynamics, make_planner
     from planner.presets import preset_settings
     from se3push.bench import median_seconds
 
-    plan = PlanSettings()
+    plan = preset_settings(preset)
     if world is not None:
         dyn = make_dynamics("oracle", scenario, world=world)
         repeats = max(3, repeats // 4)
@@ -46,8 +46,8 @@ def _replan_ms(preset: str, skip: bool, *, state, scenario, goal, repeats: int, 
                             feedback=plan.rollout.feedback,
                             contact_margin_m=plan.rollout.contact_margin_m)  # fmt: skip
         dyn.skip_out_of_reach = skip
-    cfg = preset_settings(preset).optimiser
-    planner = make_planner("cem", dyn, PushCost(scenario, goal, plan.cost), scenario, cfg)
+    planner = make_planner("cem", dyn, PushCost(scenario, goal, plan.cost), scenario,
+                           plan.optimiser)  # fmt: skip
     return 1e3 * median_seconds(lambda: planner.plan(state), repeats=repeats, warmup=2)
 
 
