@@ -207,3 +207,46 @@ def rollout(
             pixel = reproject.pixels(flat, valid.flatten(1), H, W)
             x, v = reproject.render(flat, pixel, valid, H, W)
     return out
+
+
+def rollout_control_steps(
+    model: nn.Module,
+    points: torch.Tensor,
+    valid: torch.Tensor,
+    actions: torch.Tensor,
+    state: torch.Tensor,
+    dt: float,
+    *,
+    reproject: Reprojection | None = None,
+) -> list[torch.Tensor]:
+    """:func:`rollout` over N control steps, for a network whose pass spans m of them
+    (``ModelConfig.model_step``): the planner's view of any model.
+
+    Each pass is given the mean of its m commands over m * ``dt`` (so the pusher's integrated
+    position after the pass is exact; a last, shorter span is padded with its last command),
+    and the cloud at a control step inside a pass is interpolated linearly, point by point,
+    between the clouds the pass starts and ends with. With m = 1 this is :func:`rollout`.
+
+    Args: as :func:`rollout`, with ``actions`` (B,N,c) and ``dt`` at the control step.
+
+    Returns:
+        N predicted clouds, each (B,3,H,W): where each observed point is after each control
+        step.
+    """
+    m = getattr(getattr(model, "cfg", None), "model_step", 1)
+    if m == 1:
+        return rollout(model, points, valid, actions, state, dt, reproject=reproject)
+    B, N, c = actions.shape
+    passes = -(-N // m)
+    padded = torch.cat([actions, actions[:, -1:].expand(B, passes * m - N, c)], 1)
+    means = padded.view(B, passes, m, c).mean(2)
+    ends = rollout(model, points, valid, means, state, dt * m, reproject=reproject)
+    clouds = []
+    for j in range(1, N + 1):
+        q, f = divmod(j, m)  # control step j ends pass q, or lies f/m into pass q + 1
+        if f == 0:
+            clouds.append(ends[q - 1])
+        else:
+            before = points if q == 0 else ends[q - 1]
+            clouds.append(before + (f / m) * (ends[q] - before))
+    return clouds
