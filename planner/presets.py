@@ -14,8 +14,9 @@ from planner.settings import PlanSettings, RolloutConfig
 from scenarios import InputError
 
 
-def _before(s: PlanSettings, *, optimiser: dict | None = None, cost: dict | None = None,
+def _changed(s: PlanSettings, *, optimiser: dict | None = None, cost: dict | None = None,
             rollout: dict | None = None) -> PlanSettings:  # fmt: skip
+    """``s`` with the given fields of its optimiser, cost and rollout settings changed."""
     return replace(
         s,
         optimiser=replace(s.optimiser, **(optimiser or {})),
@@ -25,13 +26,13 @@ def _before(s: PlanSettings, *, optimiser: dict | None = None, cost: dict | None
 
 
 DEFAULT = PlanSettings()
-CIRCLE = _before(DEFAULT, cost={"pre_push": "circle"})
-KEEPOUT = _before(CIRCLE, cost={"near_goal_m": 0.0})
-HORIZON3 = _before(KEEPOUT, cost={"w_keepout": 0.0})
-FADE_BEHIND = _before(HORIZON3, optimiser={"horizon_s": 0.6})
-RENDERED_GATE = _before(FADE_BEHIND, cost={"shaping_fade": "everywhere"})
+CIRCLE = _changed(DEFAULT, cost={"pre_push": "circle"})
+KEEPOUT = _changed(CIRCLE, cost={"near_goal_m": 0.0})
+HORIZON3 = _changed(KEEPOUT, cost={"w_keepout": 0.0})
+FADE_BEHIND = _changed(HORIZON3, optimiser={"horizon_s": 0.6})
+RENDERED_GATE = _changed(FADE_BEHIND, cost={"shaping_fade": "everywhere"})
 GRID = replace(RENDERED_GATE, rollout=RolloutConfig(feedback="grid", contact_margin_m=None))
-LONG = _before(
+LONG = _changed(
     DEFAULT,
     optimiser={"horizon_s": 1.2, "knots": 4, "spline": "cubic"},
     cost={"shaping_at": "every"},
