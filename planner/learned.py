@@ -21,7 +21,7 @@ from planner.dynamics import (
 )
 from scenarios import InputError, Scenario
 from se3net.data import subsample
-from se3net.rollout import reprojection, rollout_control_steps
+from se3net.rollout import reprojection, rollout
 from sim.planar import wrap_angle
 
 SKIP_BEYOND_M = 0.03
@@ -174,7 +174,7 @@ class LearnedDynamics:
         actions = actions.to(self.device)
         pusher = integrate_pusher(state, actions, self.dt)
         points, valid, obj = self.network_view(state)
-        predicted = rollout_control_steps(
+        predicted = rollout(
             self.model,
             points[None],
             valid[None],

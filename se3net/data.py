@@ -103,10 +103,6 @@ class PushDataset(Dataset):
         device: where batches are assembled and returned: the recorded clouds and poses are
             held there, so on a GPU a batch's targets and visibility cost a fraction of what
             they cost on the CPU (training on ``cuda``). The figures are the same.
-        model_step: control steps a step of the examples spans (``ModelConfig.model_step``):
-            its targets are the clouds after every ``model_step``-th step, its commands the
-            mean of the recorded ones over the span (whose integral is the pusher's exact
-            displacement), and its state the pusher position when the span starts.
 
     Each item is a dict of tensors:
         ``points`` (3,H,W) float32, the input cloud in the camera frame (m);
@@ -127,8 +123,6 @@ class PushDataset(Dataset):
     Attributes:
         control_layout: the names of the entries of ``u`` (``sim.controls``), as the
             manifest records them.
-        dt: the time a step of the examples spans (s): the scenario's control step times
-            ``model_step``, what a rollout of them integrates the commands over.
     """
 
     def __init__(
@@ -142,7 +136,6 @@ class PushDataset(Dataset):
         verify: bool = True,
         stride: int = 1,
         device: str | torch.device = "cpu",
-        model_step: int = 1,
     ):
         roots = [root] if isinstance(root, str | Path) else list(root)
         if not roots:
@@ -173,14 +166,10 @@ class PushDataset(Dataset):
                 "know; regenerate it with `se3push data`"
             )
         steps = self.manifest["identity"]["steps_per_episode"]
-        if model_step < 1:
-            raise DataError(f"model_step must be positive, got {model_step}")
-        if not 1 <= horizon * model_step <= steps:
-            each = f" of {model_step} control steps each" if model_step > 1 else ""
+        if not 1 <= horizon <= steps:
             raise DataError(
-                f"horizon {horizon}{each} does not fit episodes of {steps} steps in {root}; "
-                f"choose 1..{steps // model_step} or generate longer episodes "
-                "(--steps-per-episode)"
+                f"horizon {horizon} does not fit episodes of {steps} steps in {root}; "
+                f"choose 1..{steps} or generate longer episodes (--steps-per-episode)"
             )
         cam = self.scenario.camera
         if stride < 1 or cam.height % stride or cam.width % stride:
@@ -192,17 +181,14 @@ class PushDataset(Dataset):
         self.camera = DepthCamera(cam)
         self._T_cam_world = self.camera.T_cam_world
         self.horizon, self.noise, self.seed, self.epoch = horizon, noise, seed, 0
-        self.model_step = model_step
-        self.dt = self.scenario.action.dt_control_s * model_step
         parts = [load_episodes(r, split, verify=verify) for r in roots]
         arrays = [p.arrays if len(parts) == 1 else with_shape_details(p.arrays) for p in parts]
         self.a = {k: np.concatenate([a[k] for a in arrays]) for k in arrays[0]}
         self.episode_index = np.concatenate([p.index for p in parts])
         lengths = self.a["length"].astype(int)
         source = np.repeat(np.arange(len(parts)), [len(p.index) for p in parts])
-        span = horizon * model_step  # control steps an example covers
         self.items = np.array(
-            [(e, t) for e in range(len(lengths)) for t in range(lengths[e] - span + 1)],
+            [(e, t) for e in range(len(lengths)) for t in range(lengths[e] - horizon + 1)],
             dtype=np.int64,
         ).reshape(-1, 2)
         if len(self.items) == 0:
@@ -268,13 +254,13 @@ class PushDataset(Dataset):
         ``target_valid`` (B,h,H,W)."""
         idx = np.asarray(indices, dtype=np.int64)
         e, t = self.items[idx, 0], self.items[idx, 1]
-        h, m = self.horizon, self.model_step
+        h = self.horizon
         part = self._part[self._rows(e, t)].long()
         valid = part >= 0
         points = self.clouds(e, t)
-        targets = torch.stack([self.clouds(e, t, t + k * m) for k in range(1, h + 1)], 1)
+        targets = torch.stack([self.clouds(e, t, t + k) for k in range(1, h + 1)], 1)
         target_valid = torch.stack(
-            [self._visible(targets[:, k - 1], part, e, t + k * m) for k in range(1, h + 1)], 1
+            [self._visible(targets[:, k - 1], part, e, t + k) for k in range(1, h + 1)], 1
         )
         true_flow = (targets - points[:, None]).norm(dim=2)  # before the noise
         if self.noise is not None:
@@ -282,9 +268,8 @@ class PushDataset(Dataset):
             points, targets, target_valid = apply_noise(
                 points, targets, target_valid, valid, self.noise, rngs
             )
-        steps = t[:, None] + m * np.arange(h)  # where each step of the examples starts
-        spans = steps[..., None] + np.arange(m)  # the control steps each spans
-        actions = self.a["actions"][e[:, None, None], spans].mean(2)
+        steps = t[:, None] + np.arange(h)
+        actions = self.a["actions"][e[:, None], steps]
         key = self.layout.state_key  # the integrated state's record, if the controls have one
         if key is None:
             state, u = np.zeros((len(e), 0)), actions

@@ -116,10 +116,9 @@ def evaluate_checkpoint(
     seed ``EVAL_NOISE_SEED``; ``feedback``: how the fed-back steps feed predictions back,
     ``grid`` or ``rendered``)."""
     check_feedback(feedback)
-    mcfg = model_config(path)
-    stride = mcfg.stride
+    stride = model_config(path).stride
     reading = {"stride": stride, "noise": paper_noise(noise), "seed": EVAL_NOISE_SEED,
-               "device": device, "model_step": mcfg.model_step}  # fmt: skip
+               "device": device}  # fmt: skip
     one = PushDataset(data, split=split, horizon=1, **reading)
     if split == "all":
         refuse_trained_on([path], one.manifest, data)
@@ -134,7 +133,7 @@ def evaluate_checkpoint(
         if pred.masks is not None:
             masks.add(pred.masks, b["part"], b["points"], b["target"][:, 0], truth)
     multi = PushDataset(data, split=split, horizon=MULTI_STEPS, **reading)
-    dt = multi.dt
+    dt = multi.scenario.action.dt_control_s
     reproject = reprojection(feedback, multi.scenario.camera, stride)
     steps = [FlowStats() for _ in range(MULTI_STEPS)]
     idx = evenly_spaced(len(multi), max_examples // 2)

@@ -56,10 +56,6 @@ class ModelConfig:
     """the network sees every stride-th pixel of the camera's image in each direction
     (``se3net.data.subsample``): height and width are the camera's divided by it, a
     planning-resolution model (checkpoints from before it existed are stride 1)"""
-    model_step: int = 1
-    """control steps one network pass predicts: its input is their mean command (and the
-    pusher position when the first starts), its target the cloud after the last (2: half the
-    passes over a plan; checkpoints from before it existed are 1)"""
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
@@ -67,8 +63,8 @@ class ModelConfig:
         div = 32 if self.large else 16
         if self.height % div or self.width % div:
             raise InputError(f"{self.variant} needs height and width divisible by {div}")
-        if self.k < 1 or self.control_dim < 1 or self.stride < 1 or self.model_step < 1:
-            raise InputError("k, control_dim, stride and model_step must be positive")
+        if self.k < 1 or self.control_dim < 1 or self.stride < 1:
+            raise InputError("k, control_dim and stride must be positive")
 
     @property
     def large(self) -> bool:

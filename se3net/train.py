@@ -90,13 +90,10 @@ class TrainConfig:
     noise: str = "none"
     """the paper's robustness noise on the training and validation data
     (a name of ``se3net.data.PAPER_NOISE``), fresh in each pass over the data"""
-    model_step: int = 1
-    """control steps one network pass predicts (``ModelConfig.model_step``; 2: a model that
-    plans a horizon in half the passes)"""
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
-        for name in ("iters", "batch", "eval_every", "val_examples", "stride", "model_step"):
+        for name in ("iters", "batch", "eval_every", "val_examples", "stride"):
             if getattr(self, name) < 1:
                 raise InputError(
                     f"--{name.replace('_', '-')} must be positive, got {getattr(self, name)}"
@@ -118,7 +115,7 @@ class TrainConfig:
         check_device(self.device)
 
 
-_LATER_SETTINGS = ("stride", "noise", "later_from", "model_step")
+_LATER_SETTINGS = ("stride", "noise", "later_from")
 RETIRED_SETTINGS = {"deflected_fraction": 0.0, "loss": "moving", "controls": "fused",
                     "valid_channel": False, "full_res_head": False, "rollout_steps": 1,
                     "feedback": "grid"}  # fmt: skip
@@ -189,7 +186,7 @@ def validate(
 ) -> dict[str, float]:
     """Loss and flow MSE (one step) on fixed validation examples, and the rollout loss."""
     model.eval()
-    dt = ds.dt
+    dt = ds.scenario.action.dt_control_s
     stats, loss_sum, rollout_sum, n = FlowStats(), 0.0, 0.0, 0
     for s in range(0, len(indices), batch):
         b = {k: v.to(device) for k, v in ds.batch(indices[s : s + batch]).items()}
@@ -277,11 +274,11 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
     torch.manual_seed(cfg.seed)
     data = {
         "horizon": 1, "stride": cfg.stride, "noise": paper_noise(cfg.noise),
-        "seed": cfg.seed, "device": device, "model_step": cfg.model_step,
+        "seed": cfg.seed, "device": device,
     }  # fmt: skip
     ds = PushDataset(cfg.data, split="train", **data)
     val = PushDataset(cfg.data, split="val", **data)
-    dt = ds.dt
+    dt = ds.scenario.action.dt_control_s
     data_hash = "+".join(manifest_hash(m) for m in ds.manifests)
     cam = ds.scenario.camera
     mcfg = ModelConfig(
@@ -291,7 +288,6 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
         width=cam.width // cfg.stride,
         control_dim=len(ds.control_layout),
         stride=cfg.stride,
-        model_step=cfg.model_step,
     )
     model = build_model(mcfg).to(device)
     if cfg.init is not None:

@@ -90,7 +90,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         lr=args.lr, seed=args.seed, device=args.device, k=args.k,
         eval_every=args.eval_every, keep_every=args.keep_every,
         init=args.init, later_fraction=args.later_fraction, later_from=args.later_from,
-        stride=args.stride, noise=args.noise, model_step=args.model_step,
+        stride=args.stride, noise=args.noise,
     )  # fmt: skip
     ranks, code = ranks_from_env(), 0
     try:
@@ -322,13 +322,6 @@ def _parser() -> argparse.ArgumentParser:
         default=1,
         help="the network sees every N-th pixel of the camera's image in each direction "
         "(2: a 32x32 planning-resolution model of 64x64 data, about 3x faster to plan with)",
-    )
-    s.add_argument(
-        "--model-step",
-        type=int,
-        default=1,
-        help="control steps one network pass predicts, from their mean command (2: half the "
-        "passes over a plan)",
     )
     noise_option(s, "train and validate under the paper's robustness noise (Table 2)")
     s.add_argument("--resume", action="store_true", help="continue the run in --out exactly")

@@ -83,37 +83,6 @@ def test_targets_from_stored_associations_equal_a_fresh_simulation(root, horizon
     assert checked > 0
 
 
-def test_a_step_of_two_control_steps_targets_every_other_frame_with_the_mean_command(root):
-    """A model that predicts two control steps a pass (``model_step`` 2) learns from the cloud
-    two steps on, given the mean of the two commands and the pusher where the pair starts."""
-    ds = PushDataset(root, split="train", horizon=2, model_step=2)
-    one = PushDataset(root, split="train", horizon=4)
-    assert ds.dt == pytest.approx(2 * one.dt)
-    e_row = 2
-    episode = int(ds.episode_index[e_row])
-    world, obs, _ = _fresh_observations(episode)
-    actions = ds.a["actions"][e_row]
-    for a in actions[: int(ds.a["length"][e_row])]:
-        obs.append(world.step(a))
-    items = [i for i, (e, _) in enumerate(ds.items) if e == e_row]
-    assert len(items) == int(ds.a["length"][e_row]) - 4 + 1
-    for i in items:
-        item = ds[i]
-        t = item["t"]
-        for k in (1, 2):
-            exact = world.targets(obs[t], obs[t + 2 * k])
-            err = np.abs(item["target"][k - 1].numpy() - exact)[:, obs[t].valid]
-            assert err.max() < 2.5e-4
-            u = item["u"][k - 1].numpy()
-            pair = actions[t + 2 * k - 2 : t + 2 * k]
-            np.testing.assert_allclose(u[:2], pair.mean(0), atol=1e-6)
-            assert np.abs(pair[0] - pair[1]).max() > 1e-3  # the mean is not either command
-            np.testing.assert_allclose(u[2:], obs[t + 2 * k - 2].pusher_xy_m, atol=1e-6)
-        np.testing.assert_allclose(item["state"].numpy(), obs[t].pusher_xy_m, atol=1e-6)
-    with pytest.raises(DataError, match="horizon 4 of 2 control steps each does not fit"):
-        PushDataset(root, horizon=4, model_step=2)
-
-
 def test_target_validity_marks_points_that_stay_visible(root):
     ds = PushDataset(root, split="train", horizon=2)
     frac = np.mean(

@@ -1,8 +1,6 @@
 """The one rollout: a shared observed cloud encoded once, masks carried with their points, and
 predicted clouds rendered again before they are fed back."""
 
-from types import SimpleNamespace
-
 import numpy as np
 import pytest
 import torch
@@ -11,7 +9,7 @@ from planner import make_dynamics, plan_state
 from scenarios import load_scenario
 from se3net.data import subsample
 from se3net.model import ModelConfig, build_model
-from se3net.rollout import Reprojection, pusher_controls, rollout, rollout_control_steps
+from se3net.rollout import Reprojection, pusher_controls, rollout
 from sim import PushWorld
 
 
@@ -197,47 +195,3 @@ def test_a_rendered_rollout_follows_every_observed_point():
         torch.testing.assert_close(got, exp, atol=1e-6, rtol=1e-6)
         moved_pixel += int((pixel[0][seen] != torch.arange(h * w)[seen]).sum())
     assert moved_pixel > 100  # the rendering did move points to other pixels
-
-
-class _CarriedByThePusher(torch.nn.Module):
-    """A stand-in network whose pass spans ``model_step`` control steps of ``dt``: every point
-    moves as far as the commanded pusher does over the pass, and it records its controls."""
-
-    def __init__(self, model_step: int, dt: float):
-        super().__init__()
-        self.cfg = ModelConfig(height=16, width=16, model_step=model_step)
-        self.span_s, self.seen = model_step * dt, []
-
-    def encode(self, x, v):
-        return None
-
-    def predict(self, x, u, v, enc):
-        self.seen.append(u)
-        shift = torch.cat([u[:, :2] * self.span_s, torch.zeros(len(u), 1)], 1)
-        return SimpleNamespace(points=x + shift[:, :, None, None])
-
-
-def test_a_model_of_two_control_steps_a_pass_is_rolled_at_the_control_step():
-    """A network whose pass spans two control steps is given each pair's mean command and the
-    pusher where the pair starts (exact: the integral of the commands); the clouds between its
-    passes are interpolated, so a model linear in the command gives the exact cloud at every
-    control step wherever the command is held for the pass, a last odd step included."""
-    dt = 0.15
-    points = torch.rand(1, 3, 16, 16)
-    valid = torch.ones(1, 16, 16, dtype=torch.bool)
-    a, c = [0.1, -0.05], [-0.02, 0.08]
-    actions = torch.tensor([[a, a, c], [[0.1, 0.0], [0.0, 0.1], c]])
-    start = torch.tensor([[0.3, 0.1]])
-    net = _CarriedByThePusher(2, dt)
-    clouds = rollout_control_steps(net, points, valid, actions, start, dt)
-    assert len(clouds) == 3 and len(net.seen) == 2  # two passes for three control steps
-    moved = torch.cat([torch.zeros(2, 1, 2), dt * torch.cumsum(actions, 1)], 1)  # (2,4,2)
-    for j, cloud in enumerate(clouds, 1):
-        shift = cloud - points
-        torch.testing.assert_close(shift[0, :2, 3, 5], moved[0, j])
-    torch.testing.assert_close(net.seen[1][:, 2:], start + moved[:, 2])  # where pass 2 starts
-    torch.testing.assert_close(net.seen[0][1, :2], torch.tensor([0.05, 0.05]))  # the pair's mean
-    one = rollout_control_steps(_CarriedByThePusher(1, dt), points, valid, actions, start, dt)
-    for x, y in zip(one, rollout(_CarriedByThePusher(1, dt), points, valid, actions, start, dt),
-                    strict=True):  # fmt: skip
-        assert torch.equal(x, y)  # a pass of one control step is the plain rollout

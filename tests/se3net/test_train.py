@@ -143,8 +143,6 @@ def test_bad_training_settings_are_refused(tiny_data, tmp_path):
         _cfg(tiny_data, tmp_path, iters=0)
     with pytest.raises(InputError, match="--stride must be positive, got 0"):
         _cfg(tiny_data, tmp_path, stride=0)
-    with pytest.raises(InputError, match="--model-step must be positive, got 0"):
-        _cfg(tiny_data, tmp_path, model_step=0)
     with pytest.raises(DataError, match="stride 3 does not divide the 32x32 images"):
         train(_cfg(tiny_data, tmp_path / "s3", stride=3), progress=False)
     with pytest.raises(InputError, match="unknown variant"):
