@@ -42,15 +42,13 @@ BEFORE = {
         "near_goal_m": 0.0,
         "pre_push": "circle",
         "shaping_at": "last",
-        "discount": 1.0,
     },
     "rollout": {"feedback": "grid", "contact_margin_m": None},
 }
 """how a record that lacks a setting ran: 4 steps ahead (study and improve runs from before
 they recorded the horizon), a plan of one value per step (no knots); no disturbance term, the
 shaping term faded wherever the pusher was, no keep-out term, neither faded near the goal, the
-pre-push point on the circle about the object, the shaping term charged at the last step only,
-the pose terms not discounted;
+pre-push point on the circle about the object, the shaping term charged at the last step only;
 predicted clouds fed back on the grid, every predicted motion counted"""
 
 RETIRED = {"motion_gain": "off", "w_edge": 0.0, "rollout_steps": 1, "push_out": False,

@@ -89,9 +89,6 @@ class CostConfig:
     """weight of the pose error at steps before the last"""
     w_terminal: float = 1.0
     """weight of the pose error at the last step"""
-    discount: float = 1.0
-    """the pose terms' weight at step h (from 0) is also multiplied by discount^h: below 1, a
-    long plan leans less on its later steps, a learned model's least reliable (1: none)"""
     w_shaping: float = 0.5
     """weight of the pusher's distance to the shaping target (faded as ``shaping_fade`` says)"""
     shaping_scale_m: float = 0.03
@@ -148,8 +145,6 @@ class CostConfig:
                     )
             elif not (math.isfinite(value) and value >= 0):
                 raise InputError(f"cost.{name} must be a finite number >= 0, got {value}")
-        if not 0 < self.discount <= 1:
-            raise InputError(f"cost.discount must be in (0, 1], got {self.discount}")
         for name in ("pos_scale_m", "yaw_scale_rad", "shaping_scale_m", "moving_m"):
             if not getattr(self, name) > 0:  # the scales divide
                 raise InputError(f"cost.{name} must be positive, got {getattr(self, name)}")
@@ -328,8 +323,6 @@ class Inputs:
         c, a = self.cost.cfg, self.actions
         w = torch.full((a.shape[1],), math.sqrt(c.w_running), dtype=a.dtype, device=a.device)
         w[-1] = math.sqrt(c.w_terminal)
-        if c.discount != 1.0:
-            w = w * c.discount ** (0.5 * torch.arange(len(w), dtype=a.dtype, device=a.device))
         return w
 
 

@@ -1,4 +1,3 @@
-import dataclasses
 import math
 
 import numpy as np
@@ -366,32 +365,3 @@ def test_charged_at_every_step_the_shaping_term_makes_a_long_plan_head_off_now(o
     # 6.0, grad 6.9, cem 7.6), 0.3-1.9 cm charged at every step (sqp 0.3, grad 0.5, mppi 1.3,
     # cem 1.9)
     assert left["last"] > 0.055 and left["every"] < 0.025, left
-
-
-def test_discounted_a_long_plan_takes_sure_progress_now_over_a_promise_at_its_end():
-    """Two 8-step predictions for a disk 5 cm from the goal: one moves it to 4 cm at once and
-    holds it there; the other holds it, then brings it in over the last steps to the goal (what
-    a learned model's later, least reliable steps can promise). Undiscounted, the promise costs
-    less; discounted by 0.8 a step, the progress now does. Discount 1 is today's cost."""
-    from planner.dynamics import Rollout
-    from tests.planner.toy import TOY_COST, toy_state
-
-    scenario = load_scenario("single_box")
-    state = toy_state()
-    goal = torch.tensor([0.05, 0.0, 0.0])
-    now = [0.01] * 8
-    later = [0.0, 0.0, 0.0, 0.0, 0.01, 0.02, 0.04, 0.05]
-    xy = torch.zeros(2, 8, 3)
-    xy[:, :, 0] = torch.tensor([now, later])
-    rollout = Rollout(xy, torch.zeros(2, 8, 2))
-    U = torch.zeros(2, 8, 2)
-    position = {}
-    for discount in (1.0, 0.8):
-        cost = PushCost(scenario, goal, dataclasses.replace(TOY_COST, discount=discount))
-        terms = cost.cost_terms(state, rollout, U, last_action=torch.zeros(2))
-        position[discount] = terms["position"].tolist()
-    assert position[1.0][1] < position[1.0][0]  # the promise wins undiscounted
-    assert position[0.8][0] < position[0.8][1]  # the progress now wins discounted
-    plain = PushCost(scenario, goal, TOY_COST).cost_terms(state, rollout, U,
-                                                          last_action=torch.zeros(2))  # fmt: skip
-    assert plain["position"].tolist() == position[1.0]

@@ -61,7 +61,6 @@ def test_later_sources_override_earlier_ones(tmp_path):
         ("[cost]\nshaping_fade = 3\n", "setting cost.shaping_fade must be str, got 3"),
         ('[cost]\npre_push = "face"\n', "cost.pre_push is one of surface, circle, got 'face'"),
         ('[cost]\nshaping_at = "first"\n', "cost.shaping_at is one of last, every, got 'first'"),
-        ("[cost]\ndiscount = 1.5\n", "cost.discount must be in (0, 1], got 1.5"),
         ('[rollout]\ncontact_margin_m = "1cm"\n', "must be off or float, got '1cm'"),
         ("optimiser = 3\n", "setting optimiser in"),
         ("[optimiser\n", "is not valid TOML"),
