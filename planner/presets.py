@@ -15,7 +15,7 @@ from scenarios import InputError
 
 
 def _changed(s: PlanSettings, *, optimiser: dict | None = None, cost: dict | None = None,
-            rollout: dict | None = None) -> PlanSettings:  # fmt: skip
+             rollout: dict | None = None) -> PlanSettings:  # fmt: skip
     """``s`` with the given fields of its optimiser, cost and rollout settings changed."""
     return replace(
         s,
