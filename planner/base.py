@@ -106,11 +106,6 @@ class PlannerConfig:
     grad_starts: int = 4
     """grad: Adam runs from the best this many of those at once (one batched rollout a
     step), and the plan is the best sequence any of them reached"""
-    near_horizon_s: float | None = None
-    """the horizon (s; a knot per step) once the object is within ``near_horizon_m`` of the
-    goal's position (None: ``horizon_s`` everywhere); the warm start carries across a switch"""
-    near_horizon_m: float = 0.05
-    """where ``near_horizon_s`` takes over"""
     trust_radius: float = 0.05
     """SQP: initial trust region on each action change (m/s)"""
     seed: int = 0
@@ -233,50 +228,13 @@ class Planner:
         self.dynamics, self.cost, self.cfg = dynamics, cost, cfg
         self.bound = scenario.action.max_speed_m_s
         self.gen = torch.Generator().manual_seed(cfg.seed)
-        self.dt = scenario.action.dt_control_s
-        self.far_steps = cfg.steps(self.dt)
-        self._use(self.far_steps, cfg.knots)
-        self.reset()
-
-    def _use(self, steps: int, knots: int) -> None:
-        """Plan ``steps`` control steps ahead through ``knots`` knots (0: one per step)."""
-        self.horizon = steps
-        basis = spline_basis(steps, knots, self.cfg.spline)
-        self.identity = knots in (0, steps)  # a knot per step: the actions
+        self.horizon = cfg.steps(scenario.action.dt_control_s)
+        """H, the plan's control steps"""
+        basis = spline_basis(self.horizon, cfg.knots, cfg.spline)
+        self.identity = cfg.knots in (0, self.horizon)  # a knot per step: the actions
         self.basis = torch.from_numpy(basis).float()  # (H, M): actions from knots
         self.shift = torch.from_numpy(shift_operator(basis)).float()  # (M, M)
-
-    def _rebased(self, Z: torch.Tensor, old_basis: torch.Tensor, old_identity: bool
-                 ) -> torch.Tensor:  # fmt: skip
-        """Knots Z (..., M0, 2) of the old basis as knots of the current one: their actions cut
-        to the new horizon (or their last held), fitted by least squares."""
-        U = Z if old_identity else torch.einsum("hm,...mc->...hc", old_basis, Z)
-        H = self.horizon
-        if U.shape[-2] >= H:
-            U = U[..., :H, :]
-        else:
-            U = torch.cat([U, U[..., -1:, :].expand(*U.shape[:-2], H - U.shape[-2], 2)], -2)
-        if self.identity:
-            return U
-        return torch.einsum("mh,...hc->...mc", torch.linalg.pinv(self.basis), U)
-
-    def _switch(self, state: PlanState) -> None:
-        """Plan ``near_horizon_s`` ahead near the goal, ``horizon_s`` elsewhere."""
-        c = self.cfg
-        if c.near_horizon_s is None:
-            return
-        dist = float((self.cost.goal[:2] - state.object_pose[:2].to(self.cost.goal)).norm())
-        near = dist < c.near_horizon_m
-        steps = max(1, round(c.near_horizon_s / self.dt)) if near else self.far_steps
-        knots = 0 if near else c.knots
-        if steps == self.horizon and (knots == 0) == self.identity:
-            return
-        old_basis, old_identity = self.basis, self.identity
-        self._use(steps, knots)
-        self.nominal = self._rebased(self.nominal, old_basis, old_identity)
-        kept = getattr(self, "kept", None)
-        if kept is not None:
-            self.kept = self._rebased(kept, old_basis, old_identity)
+        self.reset()
 
     @property
     def n_knots(self) -> int:
@@ -285,8 +243,6 @@ class Planner:
 
     def reset(self) -> None:
         """Forget the warm start (a new episode)."""
-        if hasattr(self, "far_steps") and self.horizon != self.far_steps:
-            self._use(self.far_steps, self.cfg.knots)
         self.nominal = torch.zeros(self.n_knots, 2)  # the warm start's knots
         self.last_action = torch.zeros(2)  # the action executed before this plan
         self.gen.manual_seed(self.cfg.seed)
@@ -332,7 +288,6 @@ class Planner:
     def plan(self, state: PlanState) -> tuple[np.ndarray, PlanInfo]:
         """The action (2,) to apply now, and the plan it came from."""
         t0 = time.perf_counter()
-        self._switch(state)
         found, iterations = self._optimise(state, self.clamp(self.nominal))
         if isinstance(found, Best):  # evaluated already: its rollout is the plan's
             Z, rollout, cost = found.actions, found.rollout, torch.tensor([found.cost])
