@@ -29,18 +29,19 @@ echo "== pooled, near-goal horizon vs the default"
 pairs $D/default_nh5 default_surface | pool
 echo "== pooled, near-goal horizon vs long"
 pairs $D/default_nh5 default_h12 | pool
-each() {  # the success line of `se3push compare` for each folder pair "A B" on stdin
+each() {  # `se3push compare`'s success and median-steps lines, each pair "A B" on stdin
     local a b
     while read -r a b; do
         echo "== $a vs $b"
-        se3push compare "$a" "$b" | sed -n 2,2p
+        se3push compare "$a" "$b" | sed -n "2p;/^median steps/p"
     done
 }
 printf '%s\n' "$D/s5_default_nh5_heldout_objects $P/default_surface_heldout_objects" \
     "$D/s5_default_nh5_heldout_objects $P/default_long_heldout_objects" \
     "$D/s5_default_nh5_multi_object $P/default_surface_multi_object" \
     "$D/s5_default_long_multi_object $P/default_surface_multi_object" \
-    "$D/s5_default_nh5_multi_object $D/s5_default_long_multi_object" | each
+    "$D/s5_default_nh5_multi_object $D/s5_default_long_multi_object" \
+    "$D/s5_oracle_long_multi_object $P/oracle_surface_multi_object" | each
 echo "== pooled over both sets (250 trials), near-goal horizon vs the default"
 pairs $D/default_nh5 default_surface "$D/s5_default_nh5_heldout_objects $P/default_surface_heldout_objects" \
     "$D/s5_default_nh5_multi_object $P/default_surface_multi_object" | pool

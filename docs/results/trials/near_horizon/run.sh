@@ -24,7 +24,9 @@ s5() { se3push trials --n 50 --seed 5 --workers 1 --preset long \
 s5 heldout_objects &
 s5 multi_object
 wait
-# long alone among others on the same set (--preset long, no near-goal horizon), run after the
-# code of 3e655bf was removed
-se3push trials --n 50 --seed 5 --workers 2 --preset long --model default --scenario multi_object \
-    --out "$D/s5_default_long_multi_object"
+# long alone among others on the same set (--preset long, no near-goal horizon), with the
+# shipped model and with the simulator, run after the code of 3e655bf was removed
+for m in default oracle; do
+    se3push trials --n 50 --seed 5 --workers 2 --preset long --model $m --scenario multi_object \
+        --out "$D/s5_${m}_long_multi_object"
+done
