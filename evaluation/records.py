@@ -53,17 +53,20 @@ predicted clouds fed back on the grid, every predicted motion counted"""
 
 RETIRED = {"motion_gain": "off", "w_edge": 0.0, "rollout_steps": 1, "push_out": False,
            "model_s": None, "gate": "circle", "turn_push": 0.0, "discount": 1.0,
-           "near_horizon_s": None, "near_horizon_m": 0.05}  # fmt: skip
+           "near_horizon_s": None, "near_horizon_m": 0.05, "stall_horizon_s": None,
+           "stall_knots": 4, "stall_steps": 5}  # fmt: skip
 """options removed from the package, with the value that means "not used" (a gain fitted to
 the push's own steps; a term keeping the object off the table's edge; improve's multi-step
 fine-tuning; a learned model's object pushed out of the pusher's path; objects held after the
 model's first steps; the contact gate measured to the object's points; the pre-push point
 moved off the centre line to turn the object; the pose terms discounted per step; a horizon
-that shortens near the goal, whose distance means nothing without it: docs/experiments)"""
+that shortens near the goal, whose distance means nothing without it; a horizon that grows
+when the push stalls, whose knots and steps mean nothing without it: docs/experiments)"""
 
 RETIRED_SETTINGS = (("rollout", "push_out"), ("optimiser", "model_s"), ("rollout", "gate"),
                     ("cost", "turn_push"), ("cost", "discount"), ("optimiser", "near_horizon_s"),
-                    ("optimiser", "near_horizon_m"))  # fmt: skip
+                    ("optimiser", "near_horizon_m"), ("optimiser", "stall_horizon_s"),
+                    ("optimiser", "stall_knots"), ("optimiser", "stall_steps"))  # fmt: skip
 """retired options that were planning settings of schema 3"""
 
 SINCE_FLAT = {("cost", "pre_push")}

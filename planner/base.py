@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -48,13 +48,6 @@ def shift_operator(basis: np.ndarray) -> np.ndarray:
     advance = np.eye(H, k=1)
     advance[-1, -1] = 1.0
     return np.linalg.pinv(basis) @ advance @ basis
-
-
-STILL_OBJECT_M, STILL_PUSHER_M = 0.001, 0.01
-"""a push has stalled when over ``stall_steps`` replans the object moved less than the first and
-the pusher less than the second (from where they were at the first)"""
-UNSTALL_M = 0.005
-"""a stalled push is under way again once the object has moved this far from where it stalled"""
 
 
 @dataclass(frozen=True)
@@ -113,14 +106,6 @@ class PlannerConfig:
     grad_starts: int = 4
     """grad: Adam runs from the best this many of those at once (one batched rollout a
     step), and the plan is the best sequence any of them reached"""
-    stall_horizon_s: float | None = None
-    """the horizon (s) once the push stalls, through ``stall_knots`` knots: neither the object
-    nor the pusher has moved for ``stall_steps`` replans (a plan of ``horizon_s`` found nothing
-    worth doing); it holds until the object has moved (:data:`UNSTALL_M`) (None: never)"""
-    stall_knots: int = 4
-    """the knots of the plan of ``stall_horizon_s`` (0: one per step)"""
-    stall_steps: int = 5
-    """replans without motion that make a stall"""
     trust_radius: float = 0.05
     """SQP: initial trust region on each action change (m/s)"""
     seed: int = 0
@@ -243,65 +228,13 @@ class Planner:
         self.dynamics, self.cost, self.cfg = dynamics, cost, cfg
         self.bound = scenario.action.max_speed_m_s
         self.gen = torch.Generator().manual_seed(cfg.seed)
-        dt = scenario.action.dt_control_s
-        self.plans = {False: (cfg.steps(dt), cfg.knots)}
-        """the plan's control steps and knots, unstalled and (if it grows) stalled"""
-        if cfg.stall_horizon_s is not None:
-            stalled = replace(cfg, horizon_s=cfg.stall_horizon_s, knots=cfg.stall_knots)
-            self.plans[True] = (stalled.steps(dt), cfg.stall_knots)
-        self.reset()
-
-    def _use(self, stalled: bool) -> None:
-        """Plan as the push's stage says: ``horizon_s`` ahead, or ``stall_horizon_s`` once it
-        has stalled. The warm start (and CEM's kept elites) carry over: the knots whose actions
-        best fit the last plan's, cut to the new horizon or with its last action held."""
-        steps, knots = self.plans[stalled]
-        old = (self.basis, self.identity) if hasattr(self, "basis") else None
-        self.stalled, self.horizon = stalled, steps
+        self.horizon = cfg.steps(scenario.action.dt_control_s)
         """H, the plan's control steps"""
-        basis = spline_basis(steps, knots, self.cfg.spline)
-        self.identity = knots in (0, steps)  # a knot per step: the actions
+        basis = spline_basis(self.horizon, cfg.knots, cfg.spline)
+        self.identity = cfg.knots in (0, self.horizon)  # a knot per step: the actions
         self.basis = torch.from_numpy(basis).float()  # (H, M): actions from knots
         self.shift = torch.from_numpy(shift_operator(basis)).float()  # (M, M)
-        if old is not None:
-            self.nominal = self._refitted(self.nominal, *old)
-            if getattr(self, "kept", None) is not None:
-                self.kept = self._refitted(self.kept, *old)
-
-    def _refitted(self, Z: torch.Tensor, basis: torch.Tensor, identity: bool) -> torch.Tensor:
-        """Knots Z (..., M0, 2) of ``basis`` as knots of the current basis (:meth:`_use`)."""
-        U = Z if identity else torch.einsum("hm,...mc->...hc", basis, Z)
-        H = self.horizon
-        if U.shape[-2] >= H:
-            U = U[..., :H, :]
-        else:
-            U = torch.cat([U, U[..., -1:, :].expand(*U.shape[:-2], H - U.shape[-2], 2)], -2)
-        if self.identity:
-            return U
-        return self.clamp(torch.einsum("mh,...hc->...mc", torch.linalg.pinv(self.basis), U))
-
-    def _watch(self, state: PlanState) -> None:
-        """Whether the push has stalled (:data:`STILL_OBJECT_M`) or is under way again
-        (:data:`UNSTALL_M`), from the states planned from; switch plans where it changes."""
-        if len(self.plans) == 1:
-            return
-        obj = state.object_pose[:2].detach().double().cpu().numpy()
-        pusher = state.pusher_xy.detach().double().cpu().numpy()
-        if self.stalled:
-            if np.linalg.norm(obj - self.stalled_at) >= UNSTALL_M:
-                self.seen.clear()
-                self._use(False)
-            return
-        self.seen.append((obj, pusher))
-        n = self.cfg.stall_steps
-        if len(self.seen) <= n:
-            return
-        window = self.seen[-1 - n :]
-        o0, p0 = window[0]
-        if all(np.linalg.norm(o - o0) < STILL_OBJECT_M and np.linalg.norm(p - p0) < STILL_PUSHER_M
-               for o, p in window):  # fmt: skip
-            self.stalled_at = obj
-            self._use(True)
+        self.reset()
 
     @property
     def n_knots(self) -> int:
@@ -310,10 +243,6 @@ class Planner:
 
     def reset(self) -> None:
         """Forget the warm start (a new episode)."""
-        if getattr(self, "stalled", True):
-            self._use(False)
-        self.seen: list[tuple[np.ndarray, np.ndarray]] = []  # states planned from (:meth:`_watch`)
-        self.stalled_at: np.ndarray | None = None
         self.nominal = torch.zeros(self.n_knots, 2)  # the warm start's knots
         self.last_action = torch.zeros(2)  # the action executed before this plan
         self.gen.manual_seed(self.cfg.seed)
@@ -359,7 +288,6 @@ class Planner:
     def plan(self, state: PlanState) -> tuple[np.ndarray, PlanInfo]:
         """The action (2,) to apply now, and the plan it came from."""
         t0 = time.perf_counter()
-        self._watch(state)
         found, iterations = self._optimise(state, self.clamp(self.nominal))
         if isinstance(found, Best):  # evaluated already: its rollout is the plan's
             Z, rollout, cost = found.actions, found.rollout, torch.tensor([found.cost])
