@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Every pairing the seventh round of docs/experiments/long_horizon_dev.md quotes; its output is
+# compare.txt. Run from the repository's root.
+set -euo pipefail
+D=docs/results/trials/stall
+H=docs/results/trials/headline
+each() {  # `se3push compare`'s success and median-steps lines, each pair "A B" on stdin
+    local a b
+    while read -r a b; do
+        echo "== $a vs $b"
+        se3push compare "$a" "$b" | sed -n "2p;/^median steps/p"
+    done
+}
+for m in default oracle; do
+    for s in single_box multi_object heldout_objects; do
+        echo "$D/${m}_stall_$s $H/${m}_surface_$s"
+    done
+done | each
+for p in oracle_heldout_objects default_heldout_objects default_multi_object; do
+    echo "$D/s8_${p/_/_stall_} $D/s8_$p"
+done | each
