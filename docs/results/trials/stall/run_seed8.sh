@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # A fresh set, --seed 8 (no run had drawn it), to confirm the plan that looks further ahead
-# once the push stalls before it became the default: held-out objects with the simulator and
-# the shipped model, among others with the shipped model, each with and without it (the code
-# of commit ac14caa; run on to 2 cm and 10 deg). One queue, two workers.
+# once the push stalls before it could become the default: held-out objects with the
+# simulator and the shipped model, among others with the shipped model, each with and without
+# it (the code of commit ac14caa; run on to 2 cm and 10 deg). One queue, two workers.
 # Run from the repository's root.
 set -euo pipefail
 D=docs/results/trials/stall
