@@ -2,17 +2,11 @@
 # Every pairing the sixth round of docs/experiments/long_horizon_dev.md quotes; its output is
 # compare.txt. Run from the repository's root.
 set -euo pipefail
+. docs/results/trials/compare_pairs.sh
 D=docs/results/trials/near_horizon
 H=docs/results/trials/headline
 P=docs/results/trials/pre_push_seed5
 SETS="single_box multi_object heldout_objects"
-pool() {  # the pooled line of `se3push compare` over folder pairs given as "A B" lines on stdin
-    local args=() a b
-    while read -r a b; do
-        if ((${#args[@]})); then args+=(--pair "$a" "$b"); else args+=("$a" "$b"); fi
-    done
-    se3push compare "${args[@]}" | tail -1
-}
 pairs() {  # trial set 2's pairs, A's folders $1_*, B's $H/$2_*; then the seed-5 pairs given
     local s
     for s in $SETS; do echo "$1_$s $H/$2_$s"; done
@@ -29,13 +23,6 @@ echo "== pooled, near-goal horizon vs the default"
 pairs $D/default_nh5 default_surface | pool
 echo "== pooled, near-goal horizon vs long"
 pairs $D/default_nh5 default_h12 | pool
-each() {  # `se3push compare`'s success and median-steps lines, each pair "A B" on stdin
-    local a b
-    while read -r a b; do
-        echo "== $a vs $b"
-        se3push compare "$a" "$b" | sed -n "2p;/^median steps/p"
-    done
-}
 printf '%s\n' "$D/s5_default_nh5_heldout_objects $P/default_surface_heldout_objects" \
     "$D/s5_default_nh5_heldout_objects $P/default_long_heldout_objects" \
     "$D/s5_default_nh5_multi_object $P/default_surface_multi_object" \

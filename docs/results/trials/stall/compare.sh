@@ -2,15 +2,9 @@
 # Every pairing the seventh round of docs/experiments/long_horizon_dev.md quotes; its output is
 # compare.txt. Run from the repository's root.
 set -euo pipefail
+. docs/results/trials/compare_pairs.sh
 D=docs/results/trials/stall
 H=docs/results/trials/headline
-each() {  # `se3push compare`'s success and median-steps lines, each pair "A B" on stdin
-    local a b
-    while read -r a b; do
-        echo "== $a vs $b"
-        se3push compare "$a" "$b" | sed -n "2p;/^median steps/p"
-    done
-}
 for m in default oracle; do
     for s in single_box multi_object heldout_objects; do
         echo "$D/${m}_stall_$s $H/${m}_surface_$s"
