@@ -14,3 +14,10 @@ for m in oracle default; do
 done
 run --model default --scenario multi_object --out "$D/s8_default_multi_object"
 run --model default --scenario multi_object $ST --out "$D/s8_default_stall_multi_object"
+# the long preset on the same held-out set, both models, one worker each, side by side (run
+# after the code of ac14caa was removed)
+for m in oracle default; do
+    se3push trials --n 50 --seed 8 --workers 1 --preset long --model $m \
+        --scenario heldout_objects --out "$D/s8_${m}_long_heldout_objects" &
+done
+wait
