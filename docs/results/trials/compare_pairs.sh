@@ -1,11 +1,11 @@
 # Sourced by the record folders' compare.sh scripts: `se3push compare` over folder pairs given
 # one "A B" a line on stdin.
 
-each() {  # each pair's success and median-steps lines
-    local a b
+each() {  # each pair's success and median-steps lines, or the lines sed script $1 picks
+    local lines=${1:-"2p;/^median steps/p"} a b
     while read -r a b; do
         echo "== $a vs $b"
-        se3push compare "$a" "$b" | sed -n "2p;/^median steps/p"
+        se3push compare "$a" "$b" | sed -n "$lines"
     done
 }
 
