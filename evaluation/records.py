@@ -34,7 +34,8 @@ STEP_S = 0.15
 2 gave the horizon in these steps"""
 
 BEFORE = {
-    "optimiser": {"horizon_s": round(4 * STEP_S, 9), "knots": 0, "spline": "linear"},
+    "optimiser": {"horizon_s": round(4 * STEP_S, 9), "knots": 0, "spline": "linear",
+                  "push_steps": None},
     "cost": {
         "w_disturb": 0.0,
         "shaping_fade": "everywhere",
@@ -46,7 +47,8 @@ BEFORE = {
     "rollout": {"feedback": "grid", "contact_margin_m": None},
 }
 """how a record that lacks a setting ran: 4 steps ahead (study and improve runs from before
-they recorded the horizon), a plan of one value per step (no knots); no disturbance term, the
+they recorded the horizon), a plan of one value per step (no knots), every step of a
+predicted push counted; no disturbance term, the
 shaping term faded wherever the pusher was, no keep-out term, neither faded near the goal, the
 pre-push point on the circle about the object, the shaping term charged at the last step only;
 predicted clouds fed back on the grid, every predicted motion counted"""

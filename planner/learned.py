@@ -11,6 +11,7 @@ import copy
 import torch
 
 from planner.dynamics import (
+    CONTACT_SOFTNESS_M,
     PlanState,
     Rollout,
     check_contact_margin,
@@ -28,9 +29,6 @@ SKIP_BEYOND_M = 0.03
 """a learned backend skips the network for a candidate whose pusher stays this far beyond the
 contact gate's reach of every object (15 softness widths: the gate is below 3e-7, so a
 predicted step of a centimetre would move the object less than float32 resolves)"""
-CONTACT_SOFTNESS_M = 0.002
-"""how sharply :func:`contact_gate` closes: over a few millimetres beyond the reach, so that
-its gradient is finite"""
 
 
 def contact_gate(

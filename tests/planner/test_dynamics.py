@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from planner import PlannerConfig, PushCost, make_dynamics, make_planner, plan_state
-from planner.dynamics import NoMotionDynamics, integrate_pusher, planar_fit
+from planner.dynamics import NoMotionDynamics, Rollout, integrate_pusher, planar_fit
 from planner.learned import EnsembleDynamics, LearnedDynamics, contact_gate
 from scenarios import load_scenario
 from se3net.checkpoint import CheckpointError
@@ -391,3 +391,27 @@ def test_skipping_the_network_out_of_reach_gives_the_full_rollout_to_within_a_mi
     assert (skipped.object_poses[far] - full.object_poses[far]).abs().max() < 1e-6
     assert (skipped.object_poses[far] == state.object_pose).all()
     torch.testing.assert_close(skipped.pusher_xy, full.pusher_xy)
+
+
+def test_a_push_held_after_its_contact_steps_keeps_the_approach_and_the_first_steps():
+    """A pusher 30 cm off comes in at 5 cm a step for 3 steps (the object still), then pushes
+    it 1 cm and 0.02 rad a step for 5 steps: with 3 steps of contact counted, the object
+    makes the first 3 of the push and stays there, whatever the rest predicts."""
+    from planner.dynamics import held_after_contact
+
+    pusher = torch.tensor([[-0.3 + 0.05 * (h + 1), 0.0] for h in range(3)]
+                          + [[0.01 * (h + 1) - 0.02, 0.0] for h in range(5)])[None]  # fmt: skip
+    moved = torch.tensor([0.0] * 3 + [0.01 * (h + 1) for h in range(5)])
+    poses = torch.stack([moved, torch.zeros(8), 2 * moved], -1)[None].requires_grad_()
+    state = dataclasses.replace(toy_state(), pusher_xy=torch.tensor([-0.3, 0.0]),
+                                footprint_radius_m=0.03)  # fmt: skip
+    rollout = Rollout(poses, pusher)
+    held = held_after_contact(rollout, state, 3, pusher_radius_m=0.01).object_poses
+    expected = torch.cat([poses[0, :6], poses[0, 5:6].expand(2, 3)])[None]
+    torch.testing.assert_close(held, expected, atol=1e-6, rtol=0)
+    all_counted = held_after_contact(rollout, state, 5, pusher_radius_m=0.01).object_poses
+    torch.testing.assert_close(all_counted, poses, atol=1e-6, rtol=0)
+    held[0, -1, 0].backward()  # the held pose depends on the push's first steps alone
+    assert torch.isfinite(poses.grad).all()
+    assert poses.grad[0, 5, 0] == pytest.approx(1.0, abs=1e-4)
+    assert poses.grad[0, 7, 0] == pytest.approx(0.0, abs=1e-4)
