@@ -48,7 +48,7 @@ BEFORE = {
         "pre_push": "circle",
         "shaping_at": "last",
     },
-    "rollout": {"feedback": "grid", "contact_margin_m": None},
+    "rollout": {"feedback": "grid", "contact_margin_m": None, "exact_pusher": False},
 }
 """how a record that lacks a setting ran: 4 steps ahead (study and improve runs from before
 they recorded the horizon), a plan of one value per step (no knots), every step of a

@@ -66,6 +66,8 @@ class PlanState:
     """(M,H,W) bool, their pixels"""
     other_radii_m: tuple[float, ...] | None = None
     """the radii of the circles that hold their footprints (None: not known)"""
+    pusher_mask: torch.Tensor | None = None
+    """(H,W) bool, the pusher's pixels (None: not known)"""
 
     @property
     def n_others(self) -> int:
@@ -247,12 +249,14 @@ def make_dynamics(
     object_index: int = 0,
     feedback: str = "grid",
     contact_margin_m: float | None = None,
+    exact_pusher: bool = False,
 ) -> Dynamics:
     """A backend by name: ``se3net``/``flow`` (a checkpoint; the shipped model by default;
     checkpoints joined by ``+``: an ensemble of them), ``oracle`` (needs the ``world`` and
     the pushed object's index) or ``no-motion``; ``feedback``: how a learned one feeds its
     predicted clouds back (``se3net.rollout.FEEDBACK``); ``contact_margin_m``: within what
-    margin of touch a learned one's predicted motions count (``contact_gate``).
+    margin of touch a learned one's predicted motions count (``contact_gate``);
+    ``exact_pusher``: a learned one moves the pusher's points as commanded, not as predicted.
 
     Raises:
         ValueError: an unknown name. CheckpointError: a model that does not fit the scenario.
@@ -285,6 +289,7 @@ def make_dynamics(
                         device=device,
                         feedback=feedback,
                         contact_margin_m=contact_margin_m,
+                        exact_pusher=exact_pusher,
                     )
                     for m in parts
                 ]
@@ -299,5 +304,6 @@ def make_dynamics(
             device=device,
             feedback=feedback,
             contact_margin_m=contact_margin_m,
+            exact_pusher=exact_pusher,
         )
     raise ValueError(f"unknown dynamics backend {name!r}; known: {', '.join(BACKENDS)}")
