@@ -38,7 +38,6 @@ BEFORE = {
         "horizon_s": round(4 * STEP_S, 9),
         "knots": 0,
         "spline": "linear",
-        "push_steps": None,
     },
     "cost": {
         "w_disturb": 0.0,
@@ -51,8 +50,7 @@ BEFORE = {
     "rollout": {"feedback": "grid", "contact_margin_m": None, "exact_pusher": False},
 }
 """how a record that lacks a setting ran: 4 steps ahead (study and improve runs from before
-they recorded the horizon), a plan of one value per step (no knots), every step of a
-predicted push counted; no disturbance term, the
+they recorded the horizon), a plan of one value per step (no knots); no disturbance term, the
 shaping term faded wherever the pusher was, no keep-out term, neither faded near the goal, the
 pre-push point on the circle about the object, the shaping term charged at the last step only;
 predicted clouds fed back on the grid, every predicted motion counted"""
@@ -60,19 +58,21 @@ predicted clouds fed back on the grid, every predicted motion counted"""
 RETIRED = {"motion_gain": "off", "w_edge": 0.0, "rollout_steps": 1, "push_out": False,
            "model_s": None, "gate": "circle", "turn_push": 0.0, "discount": 1.0,
            "near_horizon_s": None, "near_horizon_m": 0.05, "stall_horizon_s": None,
-           "stall_knots": 4, "stall_steps": 5}  # fmt: skip
+           "stall_knots": 4, "stall_steps": 5, "push_steps": None}  # fmt: skip
 """options removed from the package, with the value that means "not used" (a gain fitted to
 the push's own steps; a term keeping the object off the table's edge; improve's multi-step
 fine-tuning; a learned model's object pushed out of the pusher's path; objects held after the
 model's first steps; the contact gate measured to the object's points; the pre-push point
 moved off the centre line to turn the object; the pose terms discounted per step; a horizon
 that shortens near the goal, whose distance means nothing without it; a horizon that grows
-when the push stalls, whose knots and steps mean nothing without it: docs/experiments)"""
+when the push stalls, whose knots and steps mean nothing without it; a predicted push counted
+for a few steps of contact only: docs/experiments)"""
 
 RETIRED_SETTINGS = (("rollout", "push_out"), ("optimiser", "model_s"), ("rollout", "gate"),
                     ("cost", "turn_push"), ("cost", "discount"), ("optimiser", "near_horizon_s"),
                     ("optimiser", "near_horizon_m"), ("optimiser", "stall_horizon_s"),
-                    ("optimiser", "stall_knots"), ("optimiser", "stall_steps"))  # fmt: skip
+                    ("optimiser", "stall_knots"), ("optimiser", "stall_steps"),
+                    ("optimiser", "push_steps"))  # fmt: skip
 """retired options that were planning settings of schema 3"""
 
 SINCE_FLAT = {("cost", "pre_push")}

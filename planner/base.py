@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from planner.cost import PushCost
-from planner.dynamics import Dynamics, PlanState, Rollout, held_after_contact
+from planner.dynamics import Dynamics, PlanState, Rollout
 from scenarios import InputError, Scenario
 
 SPLINES = ("zoh", "linear", "cubic")
@@ -108,11 +108,6 @@ class PlannerConfig:
     step), and the plan is the best sequence any of them reached"""
     trust_radius: float = 0.05
     """SQP: initial trust region on each action change (m/s)"""
-    push_steps: float | None = None
-    """the plan counts a predicted push for at most this many control steps of contact, and
-    holds the pushed object after them (``planner.dynamics.held_after_contact``), whatever the
-    model: over a long horizon the approach is seen in full, the push only as far as a
-    learned model predicts it well. None: every step counts"""
     seed: int = 0
     """seed of the planner's generator"""
 
@@ -161,8 +156,6 @@ class PlannerConfig:
                 raise InputError(f"{name} must be positive, got {getattr(self, name)}")
         if self.warm_std is not None and not self.warm_std > 0:
             raise InputError(f"warm_std must be positive or None, got {self.warm_std}")
-        if self.push_steps is not None and not self.push_steps > 0:
-            raise InputError(f"push_steps must be positive or off, got {self.push_steps}")
 
 
 ONE_PLANNER_SETTINGS = {
@@ -234,7 +227,6 @@ class Planner:
     ):
         self.dynamics, self.cost, self.cfg = dynamics, cost, cfg
         self.bound = scenario.action.max_speed_m_s
-        self.pusher_radius = scenario.arm.pusher_radius_m
         self.gen = torch.Generator().manual_seed(cfg.seed)
         self.horizon = cfg.steps(scenario.action.dt_control_s)
         """H, the plan's control steps"""
@@ -271,18 +263,10 @@ class Planner:
             return torch.cat([Z[..., 1:, :], Z[..., -1:, :]], -2)
         return self.clamp(torch.einsum("nm,...mc->...nc", self.shift.to(Z), Z))
 
-    def predict(self, state: PlanState, U: torch.Tensor) -> Rollout:
-        """What the plan believes of actions U (K,H,2): the backend's rollout, its pushes cut
-        to ``push_steps`` steps of contact where that is set."""
-        rollout = self.dynamics.rollout(state, U)
-        if self.cfg.push_steps is None:
-            return rollout
-        return held_after_contact(rollout, state, self.cfg.push_steps, self.pusher_radius)
-
     def evaluate(self, state: PlanState, Z: torch.Tensor) -> tuple[torch.Tensor, Rollout]:
         """Costs (K,) and rollouts of the plans of knots Z (K,M,2)."""
         U = self.actions(Z)
-        rollout = self.predict(state, U)
+        rollout = self.dynamics.rollout(state, U)
         return self.cost.cost(state, rollout, U, last_action=self.last_action), rollout
 
     def noise(self, K: int) -> torch.Tensor:

@@ -22,7 +22,7 @@ positions over the horizon. Backends:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -30,7 +30,6 @@ import torch
 
 from scenarios import InputError, Scenario
 from se3net.rollout import pusher_path
-from sim.planar import wrap_angle
 
 if TYPE_CHECKING:
     from sim import PushWorld
@@ -133,39 +132,8 @@ def to_world(T_world_cam: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
 
 
 CONTACT_SOFTNESS_M = 0.002
-"""how sharply a contact test (``planner.learned.contact_gate``, :func:`held_after_contact`)
-closes: over a few millimetres beyond the reach, so that its gradient is finite"""
-
-
-def held_after_contact(
-    rollout: Rollout, state: PlanState, steps: float, pusher_radius_m: float
-) -> Rollout:
-    """``rollout`` with the pushed object held where it is after ``steps`` steps of contact.
-
-    A step is in contact where the pusher's path over it passes within reach of the object
-    (the circle that holds its footprint, the pusher's radius and ``CONTACT_MARGIN_M``), from
-    where the rollout predicts the object at the step's start; the test falls from 1 to 0 over
-    ``CONTACT_SOFTNESS_M``, so the count is differentiable. Each step's predicted motion is
-    kept in full while fewer than ``steps`` steps of contact came before it, in part across the
-    limit, and not after it. A long plan's approach stays as the backend predicts it; only the
-    push is cut short, to the length over which a model's predictions are reliable."""
-    poses = rollout.object_poses
-    K = poses.shape[0]
-    start = state.object_pose.to(poses).expand(K, 1, 3)
-    before = torch.cat([start, poses[:, :-1]], 1)  # (K,H,3) the pose at each step's start
-    path = torch.cat([state.pusher_xy.to(poses).expand(K, 1, 2), rollout.pusher_xy], 1)
-    reach = state.footprint_radius_m + pusher_radius_m + CONTACT_MARGIN_M
-    H = poses.shape[1]
-    dist = torch.stack(
-        [segment_distance(before[:, h, :2], path[:, h], path[:, h + 1]) for h in range(H)], 1
-    )
-    touch = torch.sigmoid((reach - dist) / CONTACT_SOFTNESS_M)  # (K,H)
-    touched_before = torch.cumsum(touch, 1) - touch
-    keep = (steps - touched_before).clamp(0.0, 1.0)
-    step = poses - before
-    step = torch.cat([step[..., :2], wrap_angle(step[..., 2:])], -1)
-    held = start + torch.cumsum(keep[..., None] * step, 1)
-    return replace(rollout, object_poses=held)
+"""how sharply ``planner.learned.contact_gate`` closes: over a few millimetres beyond the
+reach, so that its gradient is finite"""
 
 
 class Dynamics(Protocol):

@@ -91,7 +91,7 @@ class SQPPlanner(Planner):
 
     def _residuals(self, state: PlanState, flat: torch.Tensor) -> torch.Tensor:
         U = self.actions(flat.view(1, self.n_knots, 2))
-        rollout = self.predict(state, U)
+        rollout = self.dynamics.rollout(state, U)
         return self.cost.residuals(state, rollout, U, last_action=self.last_action)[0]
 
     def _jacobian(self, state: PlanState, flat: torch.Tensor) -> torch.Tensor:
