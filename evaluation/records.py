@@ -47,7 +47,7 @@ BEFORE = {
         "pre_push": "circle",
         "shaping_at": "last",
     },
-    "rollout": {"feedback": "grid", "contact_margin_m": None, "exact_pusher": False},
+    "rollout": {"feedback": "grid", "contact_margin_m": None},
 }
 """how a record that lacks a setting ran: 4 steps ahead (study and improve runs from before
 they recorded the horizon), a plan of one value per step (no knots); no disturbance term, the
@@ -58,7 +58,8 @@ predicted clouds fed back on the grid, every predicted motion counted"""
 RETIRED = {"motion_gain": "off", "w_edge": 0.0, "rollout_steps": 1, "push_out": False,
            "model_s": None, "gate": "circle", "turn_push": 0.0, "discount": 1.0,
            "near_horizon_s": None, "near_horizon_m": 0.05, "stall_horizon_s": None,
-           "stall_knots": 4, "stall_steps": 5, "push_steps": None}  # fmt: skip
+           "stall_knots": 4, "stall_steps": 5, "push_steps": None,
+           "exact_pusher": False}  # fmt: skip
 """options removed from the package, with the value that means "not used" (a gain fitted to
 the push's own steps; a term keeping the object off the table's edge; improve's multi-step
 fine-tuning; a learned model's object pushed out of the pusher's path; objects held after the
@@ -66,13 +67,14 @@ model's first steps; the contact gate measured to the object's points; the pre-p
 moved off the centre line to turn the object; the pose terms discounted per step; a horizon
 that shortens near the goal, whose distance means nothing without it; a horizon that grows
 when the push stalls, whose knots and steps mean nothing without it; a predicted push counted
-for a few steps of contact only: docs/experiments)"""
+for a few steps of contact only; the pusher's points moved by its commands in a learned
+rollout: docs/experiments)"""
 
 RETIRED_SETTINGS = (("rollout", "push_out"), ("optimiser", "model_s"), ("rollout", "gate"),
                     ("cost", "turn_push"), ("cost", "discount"), ("optimiser", "near_horizon_s"),
                     ("optimiser", "near_horizon_m"), ("optimiser", "stall_horizon_s"),
                     ("optimiser", "stall_knots"), ("optimiser", "stall_steps"),
-                    ("optimiser", "push_steps"))  # fmt: skip
+                    ("optimiser", "push_steps"), ("rollout", "exact_pusher"))  # fmt: skip
 """retired options that were planning settings of schema 3"""
 
 SINCE_FLAT = {("cost", "pre_push")}

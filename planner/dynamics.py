@@ -65,8 +65,6 @@ class PlanState:
     """(M,H,W) bool, their pixels"""
     other_radii_m: tuple[float, ...] | None = None
     """the radii of the circles that hold their footprints (None: not known)"""
-    pusher_mask: torch.Tensor | None = None
-    """(H,W) bool, the pusher's pixels (None: not known)"""
 
     @property
     def n_others(self) -> int:
@@ -129,11 +127,6 @@ def segment_distance(p: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> torch
 def to_world(T_world_cam: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """Camera-frame points (...,N,3) in the world frame."""
     return points @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
-
-
-CONTACT_SOFTNESS_M = 0.002
-"""how sharply ``planner.learned.contact_gate`` closes: over a few millimetres beyond the
-reach, so that its gradient is finite"""
 
 
 class Dynamics(Protocol):
@@ -217,14 +210,12 @@ def make_dynamics(
     object_index: int = 0,
     feedback: str = "grid",
     contact_margin_m: float | None = None,
-    exact_pusher: bool = False,
 ) -> Dynamics:
     """A backend by name: ``se3net``/``flow`` (a checkpoint; the shipped model by default;
     checkpoints joined by ``+``: an ensemble of them), ``oracle`` (needs the ``world`` and
     the pushed object's index) or ``no-motion``; ``feedback``: how a learned one feeds its
     predicted clouds back (``se3net.rollout.FEEDBACK``); ``contact_margin_m``: within what
-    margin of touch a learned one's predicted motions count (``contact_gate``);
-    ``exact_pusher``: a learned one moves the pusher's points as commanded, not as predicted.
+    margin of touch a learned one's predicted motions count (``contact_gate``).
 
     Raises:
         ValueError: an unknown name. CheckpointError: a model that does not fit the scenario.
@@ -257,7 +248,6 @@ def make_dynamics(
                         device=device,
                         feedback=feedback,
                         contact_margin_m=contact_margin_m,
-                        exact_pusher=exact_pusher,
                     )
                     for m in parts
                 ]
@@ -272,6 +262,5 @@ def make_dynamics(
             device=device,
             feedback=feedback,
             contact_margin_m=contact_margin_m,
-            exact_pusher=exact_pusher,
         )
     raise ValueError(f"unknown dynamics backend {name!r}; known: {', '.join(BACKENDS)}")

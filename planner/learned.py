@@ -11,7 +11,6 @@ import copy
 import torch
 
 from planner.dynamics import (
-    CONTACT_SOFTNESS_M,
     PlanState,
     Rollout,
     check_contact_margin,
@@ -22,13 +21,16 @@ from planner.dynamics import (
 )
 from scenarios import InputError, Scenario
 from se3net.data import subsample
-from se3net.rollout import pusher_displacement, reprojection, rollout
+from se3net.rollout import reprojection, rollout
 from sim.planar import wrap_angle
 
 SKIP_BEYOND_M = 0.03
 """a learned backend skips the network for a candidate whose pusher stays this far beyond the
 contact gate's reach of every object (15 softness widths: the gate is below 3e-7, so a
 predicted step of a centimetre would move the object less than float32 resolves)"""
+CONTACT_SOFTNESS_M = 0.002
+"""how sharply :func:`contact_gate` closes: over a few millimetres beyond the reach, so that
+its gradient is finite"""
 
 
 def contact_gate(
@@ -81,9 +83,6 @@ class LearnedDynamics:
             predicted motion at a step counts only where the pusher's path (or, for the other
             objects, the pushed object's) passes within their two footprint radii and this
             margin of it (:func:`contact_gate`).
-        exact_pusher: move the pusher's observed points (``PlanState.pusher_mask``) by its
-            commands at every step, not as the network predicts them: the next input shows
-            the pusher where the controls say it is.
     """
 
     differentiable = True
@@ -99,7 +98,6 @@ class LearnedDynamics:
         device: str = "cpu",
         feedback: str = "grid",
         contact_margin_m: float | None = None,
-        exact_pusher: bool = False,
     ):
         # planning differentiates with respect to the actions only: a frozen copy of the
         # weights spares the backward pass their gradients (grad and SQP planners) and leaves
@@ -111,7 +109,6 @@ class LearnedDynamics:
         self.reproject = reprojection(feedback, scenario.camera, self.stride)
         self.contact_margin = check_contact_margin(contact_margin_m)
         self.pusher_radius = scenario.arm.pusher_radius_m
-        self.exact_pusher = exact_pusher
 
     def network_view(self, state: PlanState) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """What the network sees of a state, on its device: the cloud (3,h,w), the valid
@@ -177,13 +174,6 @@ class LearnedDynamics:
         actions = actions.to(self.device)
         pusher = integrate_pusher(state, actions, self.dt)
         points, valid, obj = self.network_view(state)
-        T = state.T_world_cam.to(self.device, points.dtype)
-        pinned = None
-        if self.exact_pusher and state.pusher_mask is not None:
-            seen = subsample(state.pusher_mask.to(self.device), self.stride) & valid
-            index = seen.flatten().nonzero()[:, 0]
-            if len(index):
-                pinned = (index, pusher_displacement(actions, self.dt, T[:3, :3].T))
         predicted = rollout(
             self.model,
             points[None],
@@ -192,8 +182,8 @@ class LearnedDynamics:
             state.pusher_xy.to(self.device)[None],
             self.dt,
             reproject=self.reproject,
-            pinned=pinned,
         )
+        T = state.T_world_cam.to(self.device, points.dtype)
 
         def track(mask: torch.Tensor, pose0: torch.Tensor) -> torch.Tensor:
             """(K,H,3) an object's poses: its predicted points fitted to its observed ones."""

@@ -206,7 +206,6 @@ def push_planner(cfg: PushConfig, scenario: Scenario, world: PushWorld) -> Plann
             device=cfg.device,
             feedback=cfg.plan.rollout.feedback,
             contact_margin_m=cfg.plan.rollout.contact_margin_m,
-            exact_pusher=cfg.plan.rollout.exact_pusher,
         )
     return make_planner(
         cfg.plan.planner,

@@ -8,7 +8,6 @@ import torch
 
 from planner.dynamics import PlanState
 from sim import Observation, PushWorld
-from sim.world import PART_PUSHER
 
 
 def plan_state(obs: Observation, world: PushWorld, object_index: int = 0) -> PlanState:
@@ -31,5 +30,4 @@ def plan_state(obs: Observation, world: PushWorld, object_index: int = 0) -> Pla
             else np.zeros((0, *obs.valid.shape), bool)
         ),
         other_radii_m=tuple(world.objects[j].footprint_radius_m for j in others),
-        pusher_mask=torch.from_numpy(obs.part == PART_PUSHER),
     )

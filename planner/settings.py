@@ -40,9 +40,6 @@ class RolloutConfig:
     contact_margin_m: float | None = CONTACT_MARGIN_M
     """an object's predicted motion counts only where something passes within this margin of
     touching it (``planner.dynamics.contact_gate``); None: every predicted motion counts"""
-    exact_pusher: bool = False
-    """move the pusher's points in each fed-back cloud as its commands move it, not as the
-    network predicts them (``planner.learned.LearnedDynamics``)"""
 
     def __post_init__(self) -> None:
         if self.feedback not in FEEDBACK:

@@ -143,17 +143,6 @@ def pusher_path(actions: torch.Tensor, pusher_xy: torch.Tensor, dt: float) -> to
     return pusher_xy.to(actions).reshape(-1, 1, 2) + dt * torch.cumsum(actions, dim=1)
 
 
-def pusher_displacement(
-    actions: torch.Tensor, dt: float, R_cam_world: torch.Tensor
-) -> torch.Tensor:
-    """(B,N,3) how far the pusher has moved after each of N steps of commanded velocities
-    (B,N,2), in the camera frame (rotation ``R_cam_world``, 3x3): it moves in the table plane,
-    exactly as commanded (``rollout``'s ``pinned``)."""
-    moved = dt * torch.cumsum(actions, dim=1)
-    moved = torch.cat([moved, torch.zeros_like(moved[..., :1])], -1)
-    return moved @ R_cam_world.to(actions).T
-
-
 def pusher_controls(actions: torch.Tensor, state: torch.Tensor, dt: float) -> torch.Tensor:
     """Controls (B,N,c+s) of N steps: the commands (B,N,c) and the state integrated from them
     at each step's start (``pusher_path``), from ``state`` (B or 1, s) when the first starts:
@@ -175,7 +164,6 @@ def rollout(
     dt: float,
     *,
     reproject: Reprojection | None = None,
-    pinned: tuple[torch.Tensor, torch.Tensor] | None = None,
     **sharpen: Any,
 ) -> list[torch.Tensor]:
     """Roll a network over N steps, each predicted cloud fed back as the next input.
@@ -192,9 +180,6 @@ def rollout(
         dt: the control step (s).
         reproject: feed each predicted cloud back rendered again by the camera (None: on the
             observed pixel grid; see the module's docstring).
-        pinned: points whose motion is known, not predicted: their flat pixel indices (P,)
-            and where each step takes them from where they were observed, (B,N,3) camera
-            frame (the pusher, moved by its commands, :func:`pusher_displacement`).
         sharpen: ``sigma``, ``gamma``, ``generator`` for training's weight sharpening.
 
     Returns:
@@ -213,12 +198,6 @@ def rollout(
             moved = (pred.points - x).flatten(2)
             step = moved.gather(2, pixel.clamp_min(0)[:, None].expand(B, 3, -1))
             cloud = (out[-1].flatten(2) + step * (pixel >= 0)[:, None]).view(B, 3, H, W)
-        if pinned is not None:
-            index, moved_by = pinned
-            B, _, H, W = cloud.shape
-            seen = points.flatten(2)[:, :, index]  # (B0,3,P)
-            at = (seen + moved_by[:, h, :, None]).expand(B, 3, len(index))
-            cloud = cloud.flatten(2).index_copy(2, index, at).view(B, 3, H, W)
         out.append(cloud)
         if reproject is None:
             x = cloud

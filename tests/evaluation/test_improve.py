@@ -200,7 +200,7 @@ def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(
     plan = trials["plan"]
     assert plan["cost"]["shaping_fade"] == "everywhere" and plan["optimiser"]["horizon_s"] == 0.6
     assert plan["cost"]["w_keepout"] == 0.0 and plan["cost"]["near_goal_m"] == 0.0
-    assert plan["rollout"] == {"feedback": "grid", "contact_margin_m": None, "exact_pusher": False}
+    assert plan["rollout"] == {"feedback": "grid", "contact_margin_m": None}
 
 
 def test_finetuning_keeps_the_starting_network(tiny_data, tmp_path):

@@ -114,7 +114,6 @@ def test_study_end_to_end_on_tiny(study_data, tmp_path):
     assert trials["plan"]["rollout"] == {
         "feedback": rollout.feedback,
         "contact_margin_m": rollout.contact_margin_m,
-        "exact_pusher": rollout.exact_pusher,
     }
     assert trials["plan"]["cost"]["shaping_fade"] == "everywhere"  # the study's, not the default
     assert trials["plan"]["optimiser"]["horizon_s"] == plan.optimiser.horizon_s == 0.45
