@@ -56,8 +56,10 @@ def lag(episodes: int = 6, candidates: int = 16, steps: int = 8) -> None:
             err[ep, h] = (shown - commanded).norm(dim=-1).mean()
             cmd[ep, h] = commanded.norm(dim=-1).mean()
     for h in range(steps):
-        print(f"after step {h + 1}: the pusher shown {1e3 * err[:, h].mean():.1f} mm from where "
-              f"its commands put it ({1e3 * cmd[:, h].mean():.1f} mm from its start)")
+        print(
+            f"after step {h + 1}: the pusher shown {1e3 * err[:, h].mean():.1f} mm from where "
+            f"its commands put it ({1e3 * cmd[:, h].mean():.1f} mm from its start)"
+        )
 
 
 def horizon_error(steps: int = 8) -> None:
@@ -74,6 +76,7 @@ def horizon_error(steps: int = 8) -> None:
 
     study._window_states = with_pusher
     for exact in (False, True):
+
         def dynamics(model, scenario, feedback, margin, exact=exact):
             return make_dynamics("se3net", scenario, model=model, feedback=feedback,
                                  contact_margin_m=margin, exact_pusher=exact)  # fmt: skip
@@ -81,9 +84,11 @@ def horizon_error(steps: int = 8) -> None:
         study.study_dynamics = dynamics
         for data in ("data/household", "data/single_box"):
             r = study.horizon_pose_error("default", data, steps, max_windows=200)
-            print(f"{data}, pusher {'commanded' if exact else 'predicted'}: "
-                  f"{r['horizon_pos_err_cm']:.2f} cm, {r['horizon_yaw_err_deg']:.1f} deg "
-                  f"after {steps} steps ({r['windows']} windows)")
+            print(
+                f"{data}, pusher {'commanded' if exact else 'predicted'}: "
+                f"{r['horizon_pos_err_cm']:.2f} cm, {r['horizon_yaw_err_deg']:.1f} deg "
+                f"after {steps} steps ({r['windows']} windows)"
+            )
 
 
 if __name__ == "__main__":
