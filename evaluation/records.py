@@ -34,7 +34,8 @@ STEP_S = 0.15
 2 gave the horizon in these steps"""
 
 BEFORE = {
-    "optimiser": {"horizon_s": round(4 * STEP_S, 9), "knots": 0, "spline": "linear"},
+    "optimiser": {"horizon_s": round(4 * STEP_S, 9), "knots": 0, "spline": "linear",
+                  "short_horizon_s": None, "trusted_error_m": 0.003},  # fmt: skip
     "cost": {
         "w_disturb": 0.0,
         "shaping_fade": "everywhere",
