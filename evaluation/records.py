@@ -34,8 +34,7 @@ STEP_S = 0.15
 2 gave the horizon in these steps"""
 
 BEFORE = {
-    "optimiser": {"horizon_s": round(4 * STEP_S, 9), "knots": 0, "spline": "linear",
-                  "short_horizon_s": None, "trusted_error_m": 0.003},  # fmt: skip
+    "optimiser": {"horizon_s": round(4 * STEP_S, 9), "knots": 0, "spline": "linear"},
     "cost": {
         "w_disturb": 0.0,
         "shaping_fade": "everywhere",
@@ -56,7 +55,7 @@ RETIRED = {"motion_gain": "off", "w_edge": 0.0, "rollout_steps": 1, "push_out": 
            "model_s": None, "gate": "circle", "turn_push": 0.0, "discount": 1.0,
            "near_horizon_s": None, "near_horizon_m": 0.05, "stall_horizon_s": None,
            "stall_knots": 4, "stall_steps": 5, "push_steps": None,
-           "exact_pusher": False}  # fmt: skip
+           "exact_pusher": False, "short_horizon_s": None, "trusted_error_m": 0.003}  # fmt: skip
 """options removed from the package, with the value that means "not used" (a gain fitted to
 the push's own steps; a term keeping the object off the table's edge; improve's multi-step
 fine-tuning; a learned model's object pushed out of the pusher's path; objects held after the
@@ -65,13 +64,15 @@ moved off the centre line to turn the object; the pose terms discounted per step
 that shortens near the goal, whose distance means nothing without it; a horizon that grows
 when the push stalls, whose knots and steps mean nothing without it; a predicted push counted
 for a few steps of contact only; the pusher's points moved by its commands in a learned
-rollout: docs/experiments)"""
+rollout; a horizon that shortens while the model's one-step predictions miss, whose threshold
+means nothing without it: docs/experiments)"""
 
 RETIRED_SETTINGS = (("rollout", "push_out"), ("optimiser", "model_s"), ("rollout", "gate"),
                     ("cost", "turn_push"), ("cost", "discount"), ("optimiser", "near_horizon_s"),
                     ("optimiser", "near_horizon_m"), ("optimiser", "stall_horizon_s"),
                     ("optimiser", "stall_knots"), ("optimiser", "stall_steps"),
-                    ("optimiser", "push_steps"), ("rollout", "exact_pusher"))  # fmt: skip
+                    ("optimiser", "push_steps"), ("rollout", "exact_pusher"),
+                    ("optimiser", "short_horizon_s"), ("optimiser", "trusted_error_m"))  # fmt: skip
 """retired options that were planning settings of schema 3"""
 
 SINCE_FLAT = {("cost", "pre_push")}

@@ -106,14 +106,6 @@ class PlannerConfig:
     grad_starts: int = 4
     """grad: Adam runs from the best this many of those at once (one batched rollout a
     step), and the plan is the best sequence any of them reached"""
-    short_horizon_s: float | None = None
-    """the horizon (s; a knot per step) while the model's recent predictions missed: while
-    any of its last 3 one-step predictions of the object's pose was more than
-    ``trusted_error_m`` from what the world then did (None: ``horizon_s`` always); the warm
-    start carries across a switch"""
-    trusted_error_m: float = 0.003
-    """a one-step prediction within this of the object's next pose (position, plus yaw times
-    the footprint's radius) counts as right"""
     trust_radius: float = 0.05
     """SQP: initial trust region on each action change (m/s)"""
     seed: int = 0
@@ -236,56 +228,13 @@ class Planner:
         self.dynamics, self.cost, self.cfg = dynamics, cost, cfg
         self.bound = scenario.action.max_speed_m_s
         self.gen = torch.Generator().manual_seed(cfg.seed)
-        self.dt = scenario.action.dt_control_s
-        self.far_steps = cfg.steps(self.dt)
-        self._use(self.far_steps, cfg.knots)
-        self.reset()
-
-    def _use(self, steps: int, knots: int) -> None:
-        """Plan ``steps`` control steps ahead through ``knots`` knots (0: one per step)."""
-        self.horizon = steps
-        basis = spline_basis(steps, knots, self.cfg.spline)
-        self.identity = knots in (0, steps)  # a knot per step: the actions
+        self.horizon = cfg.steps(scenario.action.dt_control_s)
+        """H, the plan's control steps"""
+        basis = spline_basis(self.horizon, cfg.knots, cfg.spline)
+        self.identity = cfg.knots in (0, self.horizon)  # a knot per step: the actions
         self.basis = torch.from_numpy(basis).float()  # (H, M): actions from knots
         self.shift = torch.from_numpy(shift_operator(basis)).float()  # (M, M)
-
-    def _rebased(self, Z: torch.Tensor, old_basis: torch.Tensor, old_identity: bool
-                 ) -> torch.Tensor:  # fmt: skip
-        """Knots Z (..., M0, 2) of the old basis as knots of the current one: their actions cut
-        to the new horizon (or their last held), fitted by least squares."""
-        U = Z if old_identity else torch.einsum("hm,...mc->...hc", old_basis, Z)
-        H = self.horizon
-        if U.shape[-2] >= H:
-            U = U[..., :H, :]
-        else:
-            U = torch.cat([U, U[..., -1:, :].expand(*U.shape[:-2], H - U.shape[-2], 2)], -2)
-        if self.identity:
-            return U
-        return torch.einsum("mh,...hc->...mc", torch.linalg.pinv(self.basis), U)
-
-    def _switch(self, state: PlanState) -> None:
-        """Plan ``short_horizon_s`` ahead while the model's recent one-step predictions
-        missed, ``horizon_s`` while they were right."""
-        c = self.cfg
-        if c.short_horizon_s is None:
-            return
-        if self.predicted_next is not None:
-            miss = state.object_pose - self.predicted_next
-            yaw = float(torch.atan2(torch.sin(miss[2]), torch.cos(miss[2])))
-            error = float(miss[:2].norm()) + abs(yaw) * state.footprint_radius_m
-            self.errors = (self.errors + [error])[-3:]
-        near = any(e > c.trusted_error_m for e in self.errors)
-        self.shortened += near
-        steps = max(1, round(c.short_horizon_s / self.dt)) if near else self.far_steps
-        knots = 0 if near else c.knots
-        if steps == self.horizon and (knots == 0) == self.identity:
-            return
-        old_basis, old_identity = self.basis, self.identity
-        self._use(steps, knots)
-        self.nominal = self._rebased(self.nominal, old_basis, old_identity)
-        kept = getattr(self, "kept", None)
-        if kept is not None:
-            self.kept = self._rebased(kept, old_basis, old_identity)
+        self.reset()
 
     @property
     def n_knots(self) -> int:
@@ -294,12 +243,7 @@ class Planner:
 
     def reset(self) -> None:
         """Forget the warm start (a new episode)."""
-        if hasattr(self, "far_steps") and self.horizon != self.far_steps:
-            self._use(self.far_steps, self.cfg.knots)
         self.nominal = torch.zeros(self.n_knots, 2)  # the warm start's knots
-        self.predicted_next: torch.Tensor | None = None  # the last plan's pose after a step
-        self.errors: list[float] = []  # its recent one-step errors
-        self.shortened = 0  # replans with the short horizon
         self.last_action = torch.zeros(2)  # the action executed before this plan
         self.gen.manual_seed(self.cfg.seed)
 
@@ -344,7 +288,6 @@ class Planner:
     def plan(self, state: PlanState) -> tuple[np.ndarray, PlanInfo]:
         """The action (2,) to apply now, and the plan it came from."""
         t0 = time.perf_counter()
-        self._switch(state)
         found, iterations = self._optimise(state, self.clamp(self.nominal))
         if isinstance(found, Best):  # evaluated already: its rollout is the plan's
             Z, rollout, cost = found.actions, found.rollout, torch.tensor([found.cost])
@@ -356,7 +299,6 @@ class Planner:
         with torch.no_grad():
             terms = self.cost.cost_terms(state, rollout, U[None], last_action=self.last_action)
         self.nominal = self.shifted(Z)  # warm start for the next replan
-        self.predicted_next = rollout.object_poses[0, 0].detach().float().cpu()
         self.last_action = U[0].clone()
         # float32 0.15 is 0.15000000596: clip in float64 so that the world accepts the action
         actions = np.clip(U.double().numpy(), -self.bound, self.bound)
