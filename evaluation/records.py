@@ -51,29 +51,41 @@ shaping term faded wherever the pusher was, no keep-out term, neither faded near
 pre-push point on the circle about the object, the shaping term charged at the last step only;
 predicted clouds fed back on the grid, every predicted motion counted"""
 
-RETIRED = {"motion_gain": "off", "w_edge": 0.0, "rollout_steps": 1, "push_out": False,
-           "model_s": None, "gate": "circle", "turn_push": 0.0, "discount": 1.0,
-           "near_horizon_s": None, "near_horizon_m": 0.05, "stall_horizon_s": None,
-           "stall_knots": 4, "stall_steps": 5, "push_steps": None,
-           "exact_pusher": False, "short_horizon_s": None, "trusted_error_m": 0.003}  # fmt: skip
-"""options removed from the package, with the value that means "not used" (a gain fitted to
-the push's own steps; a term keeping the object off the table's edge; improve's multi-step
-fine-tuning; a learned model's object pushed out of the pusher's path; objects held after the
-model's first steps; the contact gate measured to the object's points; the pre-push point
-moved off the centre line to turn the object; the pose terms discounted per step; a horizon
-that shortens near the goal, whose distance means nothing without it; a horizon that grows
-when the push stalls, whose knots and steps mean nothing without it; a predicted push counted
-for a few steps of contact only; the pusher's points moved by its commands in a learned
-rollout; a horizon that shortens while the model's one-step predictions miss, whose threshold
-means nothing without it: docs/experiments)"""
+RETIRED_SETTINGS = {
+    ("rollout", "push_out"): False,
+    ("optimiser", "model_s"): None,
+    ("rollout", "gate"): "circle",
+    ("cost", "turn_push"): 0.0,
+    ("cost", "discount"): 1.0,
+    ("optimiser", "near_horizon_s"): None,
+    ("optimiser", "near_horizon_m"): 0.05,
+    ("optimiser", "stall_horizon_s"): None,
+    ("optimiser", "stall_knots"): 4,
+    ("optimiser", "stall_steps"): 5,
+    ("optimiser", "push_steps"): None,
+    ("rollout", "exact_pusher"): False,
+    ("optimiser", "short_horizon_s"): None,
+    ("optimiser", "trusted_error_m"): 0.003,
+}
+"""retired options that were planning settings of schema 3, by section and name, with the
+value that means "not used": a learned model's object pushed out of the pusher's path; objects
+held after the model's first steps; the contact gate measured to the object's points; the
+pre-push point moved off the centre line to turn the object; the pose terms discounted per
+step; a horizon that shortens near the goal, whose distance means nothing without it; a
+horizon that grows when the push stalls, whose knots and steps mean nothing without it; a
+predicted push counted for a few steps of contact only; the pusher's points moved by its
+commands in a learned rollout; a horizon that shortens while the model's one-step predictions
+miss, whose threshold means nothing without it (docs/experiments)"""
 
-RETIRED_SETTINGS = (("rollout", "push_out"), ("optimiser", "model_s"), ("rollout", "gate"),
-                    ("cost", "turn_push"), ("cost", "discount"), ("optimiser", "near_horizon_s"),
-                    ("optimiser", "near_horizon_m"), ("optimiser", "stall_horizon_s"),
-                    ("optimiser", "stall_knots"), ("optimiser", "stall_steps"),
-                    ("optimiser", "push_steps"), ("rollout", "exact_pusher"),
-                    ("optimiser", "short_horizon_s"), ("optimiser", "trusted_error_m"))  # fmt: skip
-"""retired options that were planning settings of schema 3"""
+RETIRED = {
+    "motion_gain": "off",
+    "w_edge": 0.0,
+    "rollout_steps": 1,
+    **{name: unused for (_, name), unused in RETIRED_SETTINGS.items()},
+}
+"""every option removed from the package, by name, with the value that means "not used": a
+gain fitted to the push's own steps; a term keeping the object off the table's edge; improve's
+multi-step fine-tuning; and :data:`RETIRED_SETTINGS`"""
 
 SINCE_FLAT = {("cost", "pre_push")}
 """settings added after the last flat (study, improve) run was made: such a run ran them as
@@ -115,9 +127,9 @@ def migrate_config(meta: dict[str, Any]) -> dict[str, Any]:
             for field, value in fields.items():
                 plan.setdefault(section, {}).setdefault(field, value)
         retired = dict(meta.get("retired", {}))
-        for section, name in RETIRED_SETTINGS:
-            value = plan.get(section, {}).pop(name, RETIRED[name])
-            if value != RETIRED[name]:
+        for (section, name), unused in RETIRED_SETTINGS.items():
+            value = plan.get(section, {}).pop(name, unused)
+            if value != unused:
                 retired[name] = value
         return {**meta, "schema": SCHEMA, "plan": plan, "retired": retired}
     old = copy.deepcopy(meta)
