@@ -48,17 +48,16 @@ echo "== trial set 2, the three checkpoints pooled, long vs the default"
 echo "== trial set 2, the two other seeds pooled, long vs the default"
 { set2 "$D/seed1_long_" "$D/seed1_default_"; set2 "$D/seed2_long_" "$D/seed2_default_"; } | pool
 [ -f "$D/s10_default_long_heldout_objects/summary.json" ] || exit 0  # seed 10 still running
+s10() {  # seed 10's pairs, long against the default: the two new seeds and the shipped model
+    for m in seed1_ seed2_; do
+        echo "$D/s10_${m}long_heldout_objects $D/s10_${m}default_heldout_objects"
+    done
+    echo "$D/s10_default_long_heldout_objects $D/s10_default_heldout_objects"
+}
 echo "== fresh held-out set (seed 10), long vs the default, each checkpoint"
-for m in seed1_ seed2_ ""; do
-    echo "$D/s10_${m}long_heldout_objects $D/s10_${m}default_heldout_objects"
-done | each
+s10 | each
 echo "== fresh held-out set (seed 10), the three checkpoints pooled, long vs the default"
-for m in seed1_ seed2_ ""; do
-    echo "$D/s10_${m}long_heldout_objects $D/s10_${m}default_heldout_objects"
-done | pool
+s10 | pool
 echo "== trial set 2 and seed 10, the three checkpoints pooled, long vs the default"
 { set2 "$D/seed1_long_" "$D/seed1_default_"; set2 "$D/seed2_long_" "$D/seed2_default_"
-  set2 "$H/default_h12_" "$H/default_surface_"
-  for m in seed1_ seed2_ ""; do
-      echo "$D/s10_${m}long_heldout_objects $D/s10_${m}default_heldout_objects"
-  done; } | pool
+  set2 "$H/default_h12_" "$H/default_surface_"; s10; } | pool
