@@ -77,15 +77,11 @@ predicted push counted for a few steps of contact only; the pusher's points move
 commands in a learned rollout; a horizon that shortens while the model's one-step predictions
 miss, whose threshold means nothing without it (docs/experiments)"""
 
-RETIRED = {
-    "motion_gain": "off",
-    "w_edge": 0.0,
-    "rollout_steps": 1,
-    **{name: unused for (_, name), unused in RETIRED_SETTINGS.items()},
-}
-"""every option removed from the package, by name, with the value that means "not used": a
-gain fitted to the push's own steps; a term keeping the object off the table's edge; improve's
-multi-step fine-tuning; and :data:`RETIRED_SETTINGS`"""
+RETIRED = {"motion_gain": "off", "w_edge": 0.0, "rollout_steps": 1}
+"""options removed from the package that a schema-1 record may hold, with the value that means
+"not used": a gain fitted to the push's own steps; a term keeping the object off the table's
+edge; improve's multi-step fine-tuning (the retired planning settings of later schemas are
+:data:`RETIRED_SETTINGS`)"""
 
 SINCE_FLAT = {("cost", "pre_push")}
 """settings added after the last flat (study, improve) run was made: such a run ran them as
