@@ -16,3 +16,16 @@ pool() {  # the pooled line over all the pairs
     done
     se3push compare "${args[@]}" | tail -1
 }
+
+set2() {  # trial set 2's three scenarios, A's folder prefix against B's
+    for s in single_box multi_object heldout_objects; do echo "$1$s $2$s"; done
+}
+
+both_plans() {  # the seven sets of 50 both models ran with both plans, long against the default
+    local m=$1 H=docs/results/trials/headline P=docs/results/trials/pre_push_seed5
+    set2 "$H/${m}_h12_" "$H/${m}_surface_"
+    echo "$P/${m}_long_heldout_objects $P/${m}_surface_heldout_objects"
+    echo "docs/results/trials/near_horizon/s5_${m}_long_multi_object $P/${m}_surface_multi_object"
+    echo "docs/results/trials/stall/s8_${m}_long_heldout_objects docs/results/trials/stall/s8_${m}_heldout_objects"
+    echo "docs/results/trials/pinned/s9_${m}_long_heldout_objects docs/results/trials/pinned/s9_${m}_heldout_objects"
+}

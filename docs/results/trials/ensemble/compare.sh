@@ -27,9 +27,6 @@ echo "== dev sets, the three checkpoints pooled, long vs the default"
 { dev "$D/dev_seed1_long" "$D/dev_seed1_default"; dev "$D/dev_seed2_long" "$D/dev_seed2_default"
   echo "$L/default_longh_every $L/default_surface"
   echo "$L/default_long_multi_object $L/default_multi_object"; } | pool
-set2() {  # trial set 2's three scenarios, A's folder prefix against B's
-    for s in single_box multi_object heldout_objects; do echo "$1$s $2$s"; done
-}
 [ -f "$D/seed2_long_single_box/summary.json" ] || exit 0  # trial set 2 still running
 for s in 1 2; do
     echo "== trial set 2, seed-$s generalist, long vs the default"
@@ -63,18 +60,7 @@ echo "== trial set 2 and seed 10, the three checkpoints pooled, long vs the defa
   set2 "$H/default_h12_" "$H/default_surface_"; s10; } | pool
 [ -f "$D/s10_oracle_long_heldout_objects/summary.json" ] || exit 0  # the simulator still running
 echo "$D/s10_oracle_long_heldout_objects $D/s10_oracle_heldout_objects" | each
-S=docs/results/trials/stall
-P=docs/results/trials/pre_push_seed5
-N=docs/results/trials/near_horizon
-Q=docs/results/trials/pinned
 for m in default oracle; do
     echo "== pooled over the eight sets of 50 run with both plans (seed 10 added), long vs the default, $m"
-    {
-        set2 "$H/${m}_h12_" "$H/${m}_surface_"
-        echo "$P/${m}_long_heldout_objects $P/${m}_surface_heldout_objects"
-        echo "$N/s5_${m}_long_multi_object $P/${m}_surface_multi_object"
-        echo "$S/s8_${m}_long_heldout_objects $S/s8_${m}_heldout_objects"
-        echo "$Q/s9_${m}_long_heldout_objects $Q/s9_${m}_heldout_objects"
-        echo "$D/s10_${m}_long_heldout_objects $D/s10_${m}_heldout_objects"
-    } | pool
+    { both_plans "$m"; echo "$D/s10_${m}_long_heldout_objects $D/s10_${m}_heldout_objects"; } | pool
 done

@@ -14,32 +14,20 @@ for p in long_pinned_heldout_objects pinned_heldout_objects long_heldout_objects
     echo "$D/s9_default_$p $D/s9_default_heldout_objects"
 done | each
 echo "$D/s9_default_long_pinned_heldout_objects $D/s9_default_long_heldout_objects" | each
-pool3() {  # trial set 2's three scenarios, A's folder prefix against B's
-    for s in single_box multi_object heldout_objects; do echo "$1$s $2$s"; done
-}
 echo "== pooled over trial set 2, long pinned vs long"
-pool3 "$D/default_long_pinned_" "$H/default_h12_" | pool
+set2 "$D/default_long_pinned_" "$H/default_h12_" | pool
 echo "== pooled over trial set 2, long pinned vs the default"
-pool3 "$D/default_long_pinned_" "$H/default_surface_" | pool
+set2 "$D/default_long_pinned_" "$H/default_surface_" | pool
 echo "== pooled over trial set 2, the default pinned vs the default"
-pool3 "$D/default_pinned_" "$H/default_surface_" | pool
+set2 "$D/default_pinned_" "$H/default_surface_" | pool
 echo "== pooled over trial set 2 and seed 9, long pinned vs long"
-{ pool3 "$D/default_long_pinned_" "$H/default_h12_"
+{ set2 "$D/default_long_pinned_" "$H/default_h12_"
   echo "$D/s9_default_long_pinned_heldout_objects $D/s9_default_long_heldout_objects"; } | pool
 echo "== pooled over trial set 2 and seed 9, the default pinned vs the default"
-{ pool3 "$D/default_pinned_" "$H/default_surface_"
+{ set2 "$D/default_pinned_" "$H/default_surface_"
   echo "$D/s9_default_pinned_heldout_objects $D/s9_default_heldout_objects"; } | pool
-S=docs/results/trials/stall
-P=docs/results/trials/pre_push_seed5
-N=docs/results/trials/near_horizon
 echo "$D/s9_oracle_long_heldout_objects $D/s9_oracle_heldout_objects" | each
 for m in default oracle; do
     echo "== pooled over the seven sets of 50 run with both plans, long vs the default, $m"
-    {
-        pool3 "$H/${m}_h12_" "$H/${m}_surface_"
-        echo "$P/${m}_long_heldout_objects $P/${m}_surface_heldout_objects"
-        echo "$N/s5_${m}_long_multi_object $P/${m}_surface_multi_object"
-        echo "$S/s8_${m}_long_heldout_objects $S/s8_${m}_heldout_objects"
-        echo "$D/s9_${m}_long_heldout_objects $D/s9_${m}_heldout_objects"
-    } | pool
+    both_plans "$m" | pool
 done
