@@ -15,6 +15,9 @@ positions over the horizon. Backends:
 - ``OracleDynamics``: the MuJoCo world itself, every candidate simulated from its current
   state (in one batched rollout): the upper bound any learned model is measured against.
 - ``NoMotionDynamics``: nothing but the pusher moves: the lower bound.
+- ``PoseDynamics`` (``planner.learned``): a pose-space model (``se3net.pose_model``): the
+  object's shape encoded once from its observed points, its pose rolled by a small network;
+  a checkpoint of variant ``pose`` given as the model makes one.
 - ``EnsembleDynamics``: several learned checkpoints rolled side by side; it predicts their
   mean and reports their disagreement (``Rollout.spread``), which the cost can penalise so
   the planner keeps to actions the models agree on.
@@ -229,8 +232,9 @@ def make_dynamics(
     if name in ("se3net", "flow"):
         from pathlib import Path
 
-        from planner.learned import EnsembleDynamics, LearnedDynamics
+        from planner.learned import EnsembleDynamics, LearnedDynamics, PoseDynamics
         from se3net.checkpoint import load_checkpoint
+        from se3net.pose_model import POSE_VARIANT
 
         if model is not None and ENSEMBLE_SEP in model and not Path(model).exists():
             parts = model.split(ENSEMBLE_SEP)
@@ -254,6 +258,8 @@ def make_dynamics(
             )
 
         net, blob = load_checkpoint(model or "default", scenario=scenario, device=device)
+        if blob["model"]["variant"] == POSE_VARIANT:
+            return PoseDynamics(net, scenario, contact_margin_m=contact_margin_m)
         kind = "flow" if blob["model"]["variant"].startswith("flow") else "se3net"
         return LearnedDynamics(
             net,

@@ -1,5 +1,6 @@
 """The learned backends: an SE3-Net or flow-net checkpoint rolled forward
-(:class:`LearnedDynamics`), an ensemble of them (:class:`EnsembleDynamics`), and the contact
+(:class:`LearnedDynamics`), a pose-space model rolled forward (:class:`PoseDynamics`), an
+ensemble of them (:class:`EnsembleDynamics`), and the contact
 gate that keeps a predicted motion only where something could touch the object
 (:func:`contact_gate`). ``planner.dynamics.make_dynamics`` builds them.
 """
@@ -261,3 +262,59 @@ class EnsembleDynamics:
             spread=(spread_sq.mean(0) + 1e-12).sqrt(),  # offset: a finite gradient at 0
             other_poses=others,
         )
+
+
+class PoseDynamics:
+    """A pose-space model (``se3net.pose_model``) rolled forward: the object's shape encoded
+    once from its observed points (its support function in its own frame), then its pose
+    rolled step by step; the other objects likewise, each pushed by the pusher alone. With a
+    contact margin, predicted motion counts only within reach (:func:`contact_gate`), as for
+    the cloud models."""
+
+    differentiable = True
+    model = None  # no cloud model to show
+
+    def __init__(self, net: torch.nn.Module, scenario: Scenario, *,
+                 contact_margin_m: float | None = None):  # fmt: skip
+        self.net, self.name = net, "pose"
+        self.dt = scenario.action.dt_control_s
+        self.contact_margin = check_contact_margin(contact_margin_m)
+        self.pusher_radius = scenario.arm.pusher_radius_m
+
+    def support(self, state: PlanState, mask: torch.Tensor, pose: torch.Tensor,
+                radius: float) -> torch.Tensor:  # fmt: skip
+        """(D,) the support function of an object's observed points in its own frame."""
+        from se3net.pose_model import support_function
+
+        sel = (mask & state.valid).flatten()
+        world = to_world(state.T_world_cam.double(), state.points.flatten(1)[:, sel].T.double())
+        rel = world[:, :2] - pose[:2].double()
+        c, s = torch.cos(pose[2]).double(), torch.sin(pose[2]).double()
+        local = torch.stack([c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1]], 1)
+        return support_function(local, radius)
+
+    def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:
+        K = actions.shape[0]
+        pusher = integrate_pusher(state, actions, self.dt)
+        pusher_from = torch.cat([state.pusher_xy.to(pusher).expand(K, 1, 2), pusher], 1)
+        margin = self.contact_margin
+
+        def roll(mask: torch.Tensor, pose0: torch.Tensor, radius: float) -> torch.Tensor:
+            support = self.support(state, mask, pose0, radius).to(actions)
+            start = pose0.to(actions)
+            poses = self.net.rollout(start[None], state.pusher_xy.to(actions)[None], actions,
+                                     support[None])  # fmt: skip
+            if margin is not None:
+                reach = radius + self.pusher_radius + margin
+                poses = contact_gate(poses, start, [(pusher_from, reach)])
+            return poses
+
+        poses = roll(state.object_mask, state.object_pose, state.footprint_radius_m)
+        others = None
+        if state.n_others:
+            radii = state.other_radii_m or (state.footprint_radius_m,) * state.n_others
+            others = torch.stack(
+                [roll(m, p, r) for m, p, r in
+                 zip(state.other_masks, state.other_poses, radii, strict=True)], 2
+            )  # fmt: skip
+        return Rollout(poses, pusher, other_poses=others)

@@ -24,6 +24,7 @@ from scenarios import InputError, Scenario
 from scenarios.config import differences, scenario_dict, scenario_fingerprint
 from se3net.device import check_device
 from se3net.model import ModelConfig, build_model
+from se3net.pose_model import POSE_VARIANT, load_pose_model
 from sim.controls import control_layout, layout_named
 from sim.dataset import code_version
 from sim.shards import atomic_write_bytes, sha256
@@ -163,6 +164,11 @@ def _config_of(blob: dict[str, Any], path: str | Path) -> ModelConfig:
     stored = blob.get("model")
     if not isinstance(stored, dict):
         raise CheckpointError(f"checkpoint {path} holds no network configuration")
+    if stored.get("variant") == POSE_VARIANT:
+        raise CheckpointError(
+            f"checkpoint {path} is a pose model: it plans (--model) but predicts no clouds, "
+            "which this command needs"
+        )
     retired = {k: v for k, v in stored.items() if k in RETIRED_MODEL}
     used = sorted(f"{k}={v}" for k, v in retired.items() if v != RETIRED_MODEL[k])
     if used:
@@ -206,9 +212,12 @@ def load_checkpoint(
     """
     device = check_device(device)
     blob = read_checkpoint(path)
-    cfg = _config_of(blob, path)
-    if variant is not None and cfg.variant != variant:
-        raise CheckpointError(f"checkpoint {path} is a {cfg.variant!r} model, not {variant!r}")
+    stored = blob.get("model")
+    pose = isinstance(stored, dict) and stored.get("variant") == POSE_VARIANT
+    cfg = None if pose else _config_of(blob, path)
+    kind = POSE_VARIANT if pose else cfg.variant
+    if variant is not None and kind != variant:
+        raise CheckpointError(f"checkpoint {path} is a {kind!r} model, not {variant!r}")
     if layout_named(blob["control_layout"]) is None:
         raise CheckpointError(
             f"checkpoint {path} uses controls {blob['control_layout']}, which this code does "
@@ -231,18 +240,21 @@ def load_checkpoint(
                 + "; ".join(diffs[:4])
             )
         cam = scenario.camera
-        seen = (cfg.width * cfg.stride, cfg.height * cfg.stride)
-        if seen != (cam.width, cam.height):
+        seen = None if pose else (cfg.width * cfg.stride, cfg.height * cfg.stride)
+        if seen is not None and seen != (cam.width, cam.height):
             raise CheckpointError(
                 f"checkpoint {path} is a {cfg.width}x{cfg.height} network at pixel stride "
                 f"{cfg.stride} (images of {seen[0]}x{seen[1]}), which does not fit the "
                 f"{cam.width}x{cam.height} camera of scenario {scenario.name!r}"
             )
-    model = build_model(cfg)
     try:
-        model.load_state_dict(blob["state_dict"])
-    except RuntimeError as err:
+        if pose:
+            model = load_pose_model(blob)
+        else:
+            model = build_model(cfg)
+            model.load_state_dict(blob["state_dict"])
+    except (RuntimeError, TypeError) as err:
         raise CheckpointError(
-            f"checkpoint {path} does not fit the {cfg.variant} network of this code: {err}"
+            f"checkpoint {path} does not fit the {kind} network of this code: {err}"
         ) from None
     return model.to(device).eval(), blob

@@ -80,13 +80,34 @@ def _cmd_data(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_train_pose(args: argparse.Namespace) -> int:
+    """``train --variant pose``: a pose-space model (``se3net.pose_model``)."""
+    from se3net.pose_model import train_pose_model
+
+    cloud_only = {"--k": args.k != 4, "--stride": args.stride != 1, "--init": args.init,
+                  "--later-fraction": args.later_fraction, "--noise": args.noise != "none",
+                  "--keep-every": args.keep_every, "--resume": args.resume,
+                  "--device": args.device != "cpu"}  # fmt: skip
+    if given := [flag for flag, on in cloud_only.items() if on]:
+        raise InputError(f"{', '.join(given)}: not for --variant pose (a pose model trains in "
+                         "a few minutes on the CPU, from scratch); leave them out")  # fmt: skip
+    m = train_pose_model(list(args.data), args.out, iters=args.iters, batch=args.batch or 256,
+                         lr=args.lr, seed=args.seed)  # fmt: skip
+    print(f"done: {args.out}/best.pt; validation position error after 1 and 8 steps "
+          f"{m['first_mm']:.2f} and {m['last_mm']:.2f} mm (no motion: {m['still_first_mm']:.2f} "
+          f"and {m['still_last_mm']:.2f} mm)")  # fmt: skip
+    return 0
+
+
 def _cmd_train(args: argparse.Namespace) -> int:
     from se3net.distributed import end_process, ranks_from_env
     from se3net.train import TrainConfig, TrainingDiverged, train
 
+    if args.variant == "pose":
+        return _cmd_train_pose(args)
     data = args.data[0] if len(args.data) == 1 else tuple(args.data)
     cfg = TrainConfig(
-        data=data, out=args.out, variant=args.variant, iters=args.iters, batch=args.batch,
+        data=data, out=args.out, variant=args.variant, iters=args.iters, batch=args.batch or 32,
         lr=args.lr, seed=args.seed, device=args.device, k=args.k,
         eval_every=args.eval_every, keep_every=args.keep_every,
         init=args.init, later_fraction=args.later_fraction, later_from=args.later_from,
@@ -291,11 +312,12 @@ def _parser() -> argparse.ArgumentParser:
         help="dataset folder(s) (from `se3push data` or `se3push improve`), pooled",
     )
     s.add_argument(
-        "--variant", default="se3net", help="se3net, se3net-large, no-penalty, flow, flow-large"
-    )
+        "--variant", default="se3net",
+        help="se3net, se3net-large, no-penalty, flow, flow-large, or pose (a pose-space model)",
+    )  # fmt: skip
     s.add_argument("--out", required=True, help="run folder (checkpoints, metrics.jsonl)")
     s.add_argument("--iters", type=int, default=6000)
-    s.add_argument("--batch", type=int, default=32)
+    s.add_argument("--batch", type=int, default=None, help="examples a step (32; pose: 256)")
     s.add_argument("--lr", type=float, default=1e-3)
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or mps")

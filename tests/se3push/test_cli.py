@@ -160,6 +160,29 @@ def test_train_and_eval_commands(tiny_data, tmp_path, capsys):
     assert not (every / "eval.json").exists()
 
 
+def test_a_pose_model_trains_plans_and_is_refused_where_clouds_are_needed(tiny_data, tmp_path,
+                                                                           capsys):  # fmt: skip
+    run = tmp_path / "pose"
+    args = ["train", "--variant", "pose", "--data", str(tiny_data), "--out", str(run),
+            "--iters", "30", "--batch", "16"]  # fmt: skip
+    assert main(args) == 0
+    assert "validation position error after 1 and 8 steps" in capsys.readouterr().out
+    assert main(args) == 2  # no resume: another folder
+    assert "holds a run already" in capsys.readouterr().err
+    assert main([*args[:-4], "--out", str(tmp_path / "p2"), "--stride", "2", "--init", "x"]) == 2
+    assert "--stride, --init: not for --variant pose" in capsys.readouterr().err
+    ckpt = str(run / "best.pt")
+    assert main(["eval", "--data", str(tiny_data), "--checkpoints", ckpt,
+                 "--out", str(tmp_path / "e")]) == 2  # fmt: skip
+    assert "is a pose model" in capsys.readouterr().err
+    trials = tmp_path / "trials"
+    assert main(["trials", "--scenario", "tiny", "--n", "1", "--model", ckpt, "--max-steps", "3",
+                 "--out", str(trials)]) == 0  # fmt: skip
+    record = json.loads((trials / "trials.jsonl").read_text().splitlines()[0])
+    assert record["steps"] == 3  # a replan each step, none refused
+    assert json.loads((trials / "config.json").read_text())["model"] == ckpt
+
+
 def test_a_seed_numpy_or_torch_cannot_take_is_refused_before_anything_runs(tiny_data, tmp_path,
                                                                            capsys):  # fmt: skip
     runs = [
