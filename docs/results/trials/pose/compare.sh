@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# Every pairing docs/model.md's pose-model section and the README quote; its output is
+# compare.txt. Run from the repository's root.
+set -euo pipefail
+. docs/results/trials/compare_pairs.sh
+D=docs/results/trials/pose
+H=docs/results/trials/headline
+echo "== dev sets (--seed 1): 20000 against 4000 training steps, the default and long"
+for p in default long; do
+    for s in single_box multi_object heldout_objects; do echo "$D/dev_20k_${p}_$s $D/dev_4k_${p}_$s"; done
+done | pool
+echo "== dev sets: the 20000-step model, long against the default"
+set2 "$D/dev_20k_long_" "$D/dev_20k_default_" | each
+set2 "$D/dev_20k_long_" "$D/dev_20k_default_" | pool
+echo "== trial set 2: the pose model against the shipped SE3-Net, the default"
+set2 "$D/default_" "$H/default_surface_" | each
+set2 "$D/default_" "$H/default_surface_" | pool
+echo "== trial set 2: the pose model against the simulator, the default"
+set2 "$D/default_" "$H/oracle_surface_" | each
+echo "== trial set 2: the pose model, long against the default"
+set2 "$D/long_" "$D/default_" | each
+set2 "$D/long_" "$D/default_" | pool
+echo "== trial set 2: the pose model against the simulator, long"
+set2 "$D/long_" "$H/oracle_h12_" | each
+echo "== trial set 2: the pose model against the shipped SE3-Net, long"
+set2 "$D/long_" "$H/default_h12_" | pool
+[ -f "$D/s11_oracle_long/summary.json" ] || exit 0  # the fresh set still running
+echo "== fresh held-out set (--seed 11)"
+{ echo "$D/s11_pose_default $D/s11_se3net_default"
+  echo "$D/s11_pose_default $D/s11_oracle_default"
+  echo "$D/s11_pose_long $D/s11_pose_default"
+  echo "$D/s11_se3net_long $D/s11_se3net_default"
+  echo "$D/s11_oracle_long $D/s11_oracle_default"
+  echo "$D/s11_pose_long $D/s11_oracle_long"; } | each
+[ -f "$D/s11_oracle_default_multi_object/summary.json" ] || exit 0  # the trained objects still running
+echo "== fresh set (--seed 11), the trained objects, the default planner"
+for s in single_box multi_object; do
+    echo "$D/s11_pose_default_$s $D/s11_se3net_default_$s"
+    echo "$D/s11_pose_default_$s $D/s11_oracle_default_$s"
+done | each
+echo "== fresh set (--seed 11), all three scenarios pooled: the pose model against the SE3-Net, the default"
+{ echo "$D/s11_pose_default $D/s11_se3net_default"
+  for s in single_box multi_object; do echo "$D/s11_pose_default_$s $D/s11_se3net_default_$s"; done; } | pool
+echo "== fresh set (--seed 11), all three scenarios pooled: the pose model against the simulator, the default"
+{ echo "$D/s11_pose_default $D/s11_oracle_default"
+  for s in single_box multi_object; do echo "$D/s11_pose_default_$s $D/s11_oracle_default_$s"; done; } | pool
