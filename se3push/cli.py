@@ -87,11 +87,13 @@ def _cmd_train_pose(args: argparse.Namespace) -> int:
     cloud_only = {"--k": args.k != 4, "--stride": args.stride != 1, "--init": args.init,
                   "--later-fraction": args.later_fraction, "--noise": args.noise != "none",
                   "--keep-every": args.keep_every, "--resume": args.resume,
-                  "--device": args.device != "cpu"}  # fmt: skip
+                  "--device": args.device != "cpu", "--eval-every": args.eval_every != 250,
+                  "--later-from": args.later_from != 1}  # fmt: skip
     if given := [flag for flag, on in cloud_only.items() if on]:
         raise InputError(f"{', '.join(given)}: not for --variant pose (a pose model trains in "
                          "a few minutes on the CPU, from scratch); leave them out")  # fmt: skip
-    m = train_pose_model(list(args.data), args.out, iters=args.iters, batch=args.batch or 256,
+    m = train_pose_model(list(args.data), args.out, iters=args.iters,
+                         batch=256 if args.batch is None else args.batch,
                          lr=args.lr, seed=args.seed)  # fmt: skip
     print(f"done: {args.out}/best.pt; validation position error after 1 and 8 steps "
           f"{m['first_mm']:.2f} and {m['last_mm']:.2f} mm (no motion: {m['still_first_mm']:.2f} "
@@ -107,7 +109,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
         return _cmd_train_pose(args)
     data = args.data[0] if len(args.data) == 1 else tuple(args.data)
     cfg = TrainConfig(
-        data=data, out=args.out, variant=args.variant, iters=args.iters, batch=args.batch or 32,
+        data=data, out=args.out, variant=args.variant, iters=args.iters,
+        batch=32 if args.batch is None else args.batch,
         lr=args.lr, seed=args.seed, device=args.device, k=args.k,
         eval_every=args.eval_every, keep_every=args.keep_every,
         init=args.init, later_fraction=args.later_fraction, later_from=args.later_from,
