@@ -32,6 +32,15 @@ echo "== fresh held-out set (--seed 11)"
   echo "$D/s11_se3net_long $D/s11_se3net_default"
   echo "$D/s11_oracle_long $D/s11_oracle_default"
   echo "$D/s11_pose_long $D/s11_oracle_long"; } | each
+if [ -f "$D/s11_s128_default/summary.json" ]; then  # run_search.sh
+    echo "== four times the search (samples 128), the default: dev sets, trial set 2, seed 11 held-out"
+    set2 "$D/dev_s128_default_" "$D/dev_20k_default_" | each
+    set2 "$D/dev_s128_default_" "$D/dev_20k_default_" | pool
+    set2 "$D/s128_default_" "$D/default_" | pool
+    echo "$D/s11_s128_default $D/s11_pose_default" | each
+    echo "== four times the search, long against the default, dev sets"
+    set2 "$D/dev_s128_long_" "$D/dev_s128_default_" | pool
+fi
 [ -f "$D/s11_oracle_default_multi_object/summary.json" ] || exit 0  # the trained objects still running
 echo "== fresh set (--seed 11), the trained objects, the default planner"
 for s in single_box multi_object; do
