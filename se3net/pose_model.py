@@ -47,7 +47,11 @@ STEP_SCALE = torch.tensor([0.01, 0.01, 0.1])
 
 @dataclass(frozen=True)
 class PoseModelConfig:
+    """A pose model's size, and the pusher and control step it was trained for (stored in its
+    checkpoint, as ``se3net.model.ModelConfig`` is for the cloud networks)."""
+
     variant: str = POSE_VARIANT
+    """what tells a pose checkpoint from a cloud network's"""
     hidden: int = 128
     """width of the hidden layers"""
     layers: int = 3
