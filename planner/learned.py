@@ -284,13 +284,11 @@ class PoseDynamics:
     def support(self, state: PlanState, mask: torch.Tensor, pose: torch.Tensor,
                 radius: float) -> torch.Tensor:  # fmt: skip
         """(D,) the support function of an object's observed points in its own frame."""
-        from se3net.pose_model import support_function
+        from se3net.pose_model import rotate, support_function
 
         sel = (mask & state.valid).flatten()
         world = to_world(state.T_world_cam.double(), state.points.flatten(1)[:, sel].T.double())
-        rel = world[:, :2] - pose[:2].double()
-        c, s = torch.cos(pose[2]).double(), torch.sin(pose[2]).double()
-        local = torch.stack([c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1]], 1)
+        local = rotate(world[:, :2] - pose[:2].double(), -pose[2])  # cos, sin in float32
         return support_function(local, radius)
 
     def rollout(self, state: PlanState, actions: torch.Tensor, *, clouds: bool = False) -> Rollout:

@@ -89,7 +89,7 @@ def _reach(support: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
     return s0 * (1 - w) + s1 * w
 
 
-def _rotate(v: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
+def rotate(v: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
     """Planar vectors (...,2) turned by ``yaw`` (...)."""
     c, s = yaw.cos(), yaw.sin()
     return torch.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], -1)
@@ -117,8 +117,8 @@ class PoseModel(nn.Module):
     ) -> torch.Tensor:  # fmt: skip
         """(B,3) the pose after one step from ``pose`` (B,3, world), with the pusher at
         ``pusher`` (B,2) commanded at ``velocity`` (B,2), for footprints ``support`` (B,D)."""
-        rel = _rotate(pusher - pose[:, :2], -pose[:, 2])
-        vel = _rotate(velocity, -pose[:, 2])
+        rel = rotate(pusher - pose[:, :2], -pose[:, 2])
+        vel = rotate(velocity, -pose[:, 2])
         after = rel + vel * self.cfg.dt_s
         r = self.cfg.pusher_radius_m
         gap_now = rel.norm(dim=-1) - _reach(support, rel) - r
@@ -128,7 +128,7 @@ class PoseModel(nn.Module):
              gap_after[:, None] / 0.01], 1,
         )  # fmt: skip
         d = self.net(x) * STEP_SCALE.to(x)
-        xy = pose[:, :2] + _rotate(d[:, :2], pose[:, 2])
+        xy = pose[:, :2] + rotate(d[:, :2], pose[:, 2])
         return torch.cat([xy, pose[:, 2:] + d[:, 2:]], 1)
 
     def rollout(
