@@ -260,10 +260,11 @@ def run_improve(
     """Run (or continue) the rounds, the closed-loop pushes on ``workers`` workers of
     ``backend`` (``sim.jobs``: the local pool, or Ray at ``address``); returns and writes the
     per-round, per-scenario table."""
-    from se3net.checkpoint import load_checkpoint
+    from se3net.checkpoint import load_checkpoint, model_config
     from sim.datastore import read_manifest, scenario_of
 
     jobs = worker_backend(workers, None, backend, address)
+    model_config(cfg.model)  # a network the rounds can fine-tune (a pose model is refused)
     # refuse what cannot work before writing anything
     measured = [push_scenario(s) for s in cfg.measured()]
     names = [s.name for s in measured]

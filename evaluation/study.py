@@ -366,7 +366,7 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
     accuracy figures are cached in ``out/accuracy/<label>.json``.
     """
     from planner.loop import push_scenario
-    from se3net.checkpoint import manifest_hash
+    from se3net.checkpoint import manifest_hash, model_config
     from sim.datastore import read_manifest
 
     out = Path(out)
@@ -375,7 +375,11 @@ def run_study(cfg: StudyConfig, out: str | Path, *, workers: int = 1) -> dict[st
     rows = []
     # the data by its contents: a folder made again under the same path is other data
     data_id = manifest_hash(read_manifest(cfg.data))
-    for label, model in parse_models(cfg.models):
+    models = parse_models(cfg.models)
+    for _, model in models:  # a missing or cloudless model is refused before any trial runs
+        if model not in BACKEND_MODELS:
+            model_config(model)
+    for label, model in models:
         safe = folder_name(label)
         cache = out / "accuracy" / f"{safe}.json"
         # the horizon error is the model rolled as the planner rolls it: a cache made with

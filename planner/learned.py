@@ -238,7 +238,7 @@ class EnsembleDynamics:
 
     differentiable = True
 
-    def __init__(self, members: list[LearnedDynamics]):
+    def __init__(self, members: list[LearnedDynamics | PoseDynamics]):
         if len(members) < 2:
             raise InputError(f"an ensemble needs at least two models, got {len(members)}")
         self.members = members
@@ -255,10 +255,12 @@ class EnsembleDynamics:
         others = None
         if outs[0].other_poses is not None:
             others = torch.stack([o.other_poses for o in outs]).mean(0)
+        # a pose model predicts no clouds: an ensemble with one has none either
+        with_clouds = clouds and all(o.clouds is not None for o in outs)
         return Rollout(
             mean,
             outs[0].pusher_xy,
-            torch.stack([o.clouds for o in outs]).mean(0) if clouds else None,
+            torch.stack([o.clouds for o in outs]).mean(0) if with_clouds else None,
             spread=(spread_sq.mean(0) + 1e-12).sqrt(),  # offset: a finite gradient at 0
             other_poses=others,
         )
@@ -266,10 +268,11 @@ class EnsembleDynamics:
 
 class PoseDynamics:
     """A pose-space model (``se3net.pose_model``) rolled forward: the object's shape encoded
-    once from its observed points (its support function in its own frame), then its pose
-    rolled step by step; the other objects likewise, each pushed by the pusher alone. With a
-    contact margin, predicted motion counts only within reach (:func:`contact_gate`), as for
-    the cloud models."""
+    once a rollout from its observed points (its support function in its own frame), then its
+    pose rolled step by step, every candidate at once; the other objects likewise, each pushed
+    by the pusher alone (an object pushed into another is not modelled). With a contact
+    margin, predicted motion counts only within reach (:func:`contact_gate`), as for the cloud
+    models. The network runs on its own device; results come back on the caller's."""
 
     differentiable = True
     model = None  # no cloud model to show
@@ -277,6 +280,7 @@ class PoseDynamics:
     def __init__(self, net: torch.nn.Module, scenario: Scenario, *,
                  contact_margin_m: float | None = None):  # fmt: skip
         self.net, self.name = net, "pose"
+        self.device = next(net.parameters()).device
         self.dt = scenario.action.dt_control_s
         self.contact_margin = check_contact_margin(contact_margin_m)
         self.pusher_radius = scenario.arm.pusher_radius_m
@@ -296,12 +300,13 @@ class PoseDynamics:
         pusher = integrate_pusher(state, actions, self.dt)
         pusher_from = torch.cat([state.pusher_xy.to(pusher).expand(K, 1, 2), pusher], 1)
         margin = self.contact_margin
+        on = actions.to(self.device)
 
         def roll(mask: torch.Tensor, pose0: torch.Tensor, radius: float) -> torch.Tensor:
-            support = self.support(state, mask, pose0, radius).to(actions)
+            support = self.support(state, mask, pose0, radius).to(on)
             start = pose0.to(actions)
-            poses = self.net.rollout(start[None], state.pusher_xy.to(actions)[None], actions,
-                                     support[None])  # fmt: skip
+            poses = self.net.rollout(start[None].to(on), state.pusher_xy.to(on)[None], on,
+                                     support[None]).to(actions)  # fmt: skip
             if margin is not None:
                 reach = radius + self.pusher_radius + margin
                 poses = contact_gate(poses, start, [(pusher_from, reach)])

@@ -166,8 +166,8 @@ def _config_of(blob: dict[str, Any], path: str | Path) -> ModelConfig:
         raise CheckpointError(f"checkpoint {path} holds no network configuration")
     if stored.get("variant") == POSE_VARIANT:
         raise CheckpointError(
-            f"checkpoint {path} is a pose model: it plans (--model) but predicts no clouds, "
-            "which this command needs"
+            f"checkpoint {path} is a pose model: it plans (--model), but this command needs a "
+            "cloud network (an SE3-Net or a flow net)"
         )
     retired = {k: v for k, v in stored.items() if k in RETIRED_MODEL}
     used = sorted(f"{k}={v}" for k, v in retired.items() if v != RETIRED_MODEL[k])

@@ -85,6 +85,31 @@ def subsample_batch(b: dict[str, Any], stride: int) -> dict[str, Any]:
     return {k: subsample(v, stride) if k in IMAGE_KEYS else v for k, v in b.items()}
 
 
+def poolable_manifests(roots: Sequence[str | Path]) -> list[dict]:
+    """The manifests of dataset folders that can be pooled: one episode length, control
+    layout, camera and action settings (other objects are welcome: that is what a generalist
+    is trained on); else a DataError naming the first two that differ."""
+    if not roots:
+        raise DataError("no dataset folder given")
+    manifests = [read_manifest(r) for r in roots]
+    first = scenario_fingerprint(scenario_of(manifests[0]))
+    for r, m in zip(roots[1:], manifests[1:], strict=True):
+        for key in ("steps_per_episode", "control_layout"):
+            if m["identity"][key] != manifests[0]["identity"][key]:
+                raise DataError(
+                    f"{r} and {roots[0]} differ in {key}; only datasets of one episode "
+                    "length and control layout can be pooled"
+                )
+        diffs = differences(first, scenario_fingerprint(scenario_of(m)), old_has=str(roots[0]),
+                            new_has=str(r))  # fmt: skip
+        if diffs:
+            raise DataError(
+                f"{r} and {roots[0]} were recorded with other cameras or actions "
+                f"({'; '.join(diffs[:3])}); only such data can be pooled"
+            )
+    return manifests
+
+
 class PushDataset(Dataset):
     """Examples ``(cloud at t, controls t..t+h-1) -> targets at t+1..t+h``.
 
@@ -138,26 +163,9 @@ class PushDataset(Dataset):
         device: str | torch.device = "cpu",
     ):
         roots = [root] if isinstance(root, str | Path) else list(root)
-        if not roots:
-            raise DataError("no dataset folder given")
-        self.manifests = [read_manifest(r) for r in roots]
+        self.manifests = poolable_manifests(roots)
         self.manifest = self.manifests[0]
         self.scenario = scenario_of(self.manifest)
-        first = scenario_fingerprint(self.scenario)
-        for r, m in zip(roots[1:], self.manifests[1:], strict=True):
-            for key in ("steps_per_episode", "control_layout"):
-                if m["identity"][key] != self.manifest["identity"][key]:
-                    raise DataError(
-                        f"{r} and {roots[0]} differ in {key}; only datasets of one episode "
-                        "length and control layout can be pooled"
-                    )
-            diffs = differences(first, scenario_fingerprint(scenario_of(m)), old_has=str(roots[0]),
-                                new_has=str(r))  # fmt: skip
-            if diffs:  # other objects are welcome: that is what a generalist is trained on
-                raise DataError(
-                    f"{r} and {roots[0]} were recorded with other cameras or actions "
-                    f"({'; '.join(diffs[:3])}); only such data can be pooled"
-                )
         self.control_layout = tuple(self.manifest["identity"]["control_layout"])
         self.layout = layout_named(self.control_layout)
         if self.layout is None:

@@ -10,8 +10,9 @@ in the object's frame at the step's start,
     (pusher position, commanded pusher velocity, support function, gap now, gap after)
         -> (dx, dy, dyaw) of the object over the step,
 
-where a gap is how far the pusher's surface is from the footprint along the ray from its
-centre (negative: overlapping). A rollout of H candidates' steps is H small matrix products,
+where a gap is the pusher's distance from the object's centre less the support function
+toward it and the pusher's radius (``_reach``: a distance to the surface along a face's
+normal, a feature elsewhere). A rollout of H candidates' steps is H small matrix products,
 so a 1.2 s plan costs far less than one pass of the SE3-Net's convolutions.
 
 Trained on the same exploration data as the SE3-Net (``sim.dataset``: the parts' poses, the
@@ -77,9 +78,11 @@ def support_function(xy: torch.Tensor, fallback_m: float) -> torch.Tensor:
 
 
 def _reach(support: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
-    """(...) the footprint's reach along the ray from its centre through ``rel`` (...,2): the
-    support function interpolated at the ray's angle (its radial extent, for convex shapes
-    about the centre)."""
+    """(...) the footprint's reach toward ``rel`` (...,2): the support function interpolated
+    at its angle. It is the footprint's radial extent only where the support point lies on
+    the ray (a box's face normals); elsewhere it is further (a 10 x 5 cm box: 5.3 cm at 45
+    degrees, where its edge is 3.5 cm away), so a gap is a feature the network learns to read,
+    not a distance."""
     angle = torch.atan2(rel[..., 1], rel[..., 0]) % (2 * math.pi)
     pos = angle / (2 * math.pi / DIRECTIONS)
     i0 = pos.floor().long() % DIRECTIONS
@@ -166,7 +169,7 @@ class Windows:
 def windows(folders: list[str], split: str, horizon: int) -> Windows:
     """Every ``horizon``-step window of every object of every episode of a split."""
     from sim.datastore import load_episodes
-    from sim.world import FIRST_OBJECT_PART
+    from sim.world import object_part
 
     pose, pusher, actions, support = [], [], [], []
     for folder in folders:
@@ -176,14 +179,16 @@ def windows(folders: list[str], split: str, horizon: int) -> Windows:
             for i in range(int(a["n_objects"][e])):
                 radius = 0.5 * float(np.hypot(*a["object_size"][e, i, :2]))
                 for t in range(0, n_steps - horizon + 1):
-                    seen = a["part"][e, t] == FIRST_OBJECT_PART + i
+                    seen = a["part"][e, t] == object_part(i)
                     xy = torch.from_numpy(a["points_part"][e, t][:2, seen].T.astype(np.float64))
                     support.append(support_function(xy, radius))
                     pose.append(a["object_poses"][e, t : t + horizon + 1, i])
                     pusher.append(a["pusher_xy"][e, t])
                     actions.append(a["actions"][e, t : t + horizon])
     if not pose:
-        raise InputError(f"no {horizon}-step windows in {', '.join(folders)} ({split})")
+        raise InputError(f"no {horizon}-step windows in {', '.join(folders)} ({split}): make "
+                         f"data with --steps-per-episode {horizon} or more, and enough episodes "
+                         "for every split")  # fmt: skip
     f = lambda x: torch.from_numpy(np.asarray(x)).float()  # noqa: E731
     return Windows(f(pose), f(pusher), f(actions), torch.stack(support))
 
@@ -218,8 +223,10 @@ def train_pose_model(
     from tqdm import tqdm
 
     from se3net.checkpoint import manifest_hash, save_checkpoint
+    from se3net.data import poolable_manifests
+    from se3net.train import TrainingDiverged
     from sim.controls import PUSHER_LAYOUT, control_layout
-    from sim.datastore import read_manifest, scenario_of
+    from sim.datastore import scenario_of
 
     for name, value in (("iters", iters), ("batch", batch), ("lr", lr)):
         if not value > 0:
@@ -230,18 +237,15 @@ def train_pose_model(
         raise InputError(f"{out} holds a run already; choose another --out (a pose model "
                          "trains from scratch in minutes)")  # fmt: skip
     torch.manual_seed(seed)
-    manifests = [read_manifest(f) for f in data]
+    manifests = poolable_manifests(data)
     scenario = scenario_of(manifests[0])
-    for folder, manifest in zip(data, manifests, strict=True):
-        other = scenario_of(manifest)
-        if control_layout(other) != PUSHER_LAYOUT:
-            raise InputError(f"{folder} holds data of joint-velocity controls; a pose model "
-                             "takes pusher velocities")  # fmt: skip
-        if (other.action.dt_control_s, other.arm.pusher_radius_m) != (
-            scenario.action.dt_control_s, scenario.arm.pusher_radius_m
-        ):
-            raise InputError(f"{folder} has another control step or pusher than {data[0]}; "
-                             "pool folders of one arm and timing")  # fmt: skip
+    if control_layout(scenario) != PUSHER_LAYOUT:
+        raise InputError(f"{data[0]} holds data of joint-velocity controls; a pose model takes "
+                         "pusher velocities")  # fmt: skip
+    radii = {scenario_of(m).arm.pusher_radius_m for m in manifests}
+    if len(radii) > 1:  # the arm is not in the fingerprint: the gaps are to the pusher's surface
+        raise InputError(f"{', '.join(data)} were recorded with pushers of radii "
+                         f"{sorted(radii)}; pool folders of one pusher")  # fmt: skip
     cfg = PoseModelConfig(pusher_radius_m=scenario.arm.pusher_radius_m,
                           dt_s=scenario.action.dt_control_s)  # fmt: skip
     train, val = windows(data, "train", horizon), windows(data, "val", horizon)
@@ -256,6 +260,9 @@ def train_pose_model(
         pred = model.rollout(train.pose[idx, 0], train.pusher[idx], train.actions[idx],
                              train.support[idx])  # fmt: skip
         loss = pose_loss(pred, train.pose[idx, 1:])
+        if not torch.isfinite(loss):
+            raise TrainingDiverged(f"the loss is {loss.item()} at step {it}; nothing was "
+                                   "written: run again with a lower --lr")  # fmt: skip
         opt.zero_grad()
         loss.backward()
         opt.step()

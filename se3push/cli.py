@@ -83,6 +83,7 @@ def _cmd_data(args: argparse.Namespace) -> int:
 def _cmd_train_pose(args: argparse.Namespace) -> int:
     """``train --variant pose``: a pose-space model (``se3net.pose_model``)."""
     from se3net.pose_model import train_pose_model
+    from se3net.train import TrainingDiverged
 
     cloud_only = {"--k": args.k != 4, "--stride": args.stride != 1, "--init": args.init,
                   "--later-fraction": args.later_fraction, "--noise": args.noise != "none",
@@ -92,9 +93,13 @@ def _cmd_train_pose(args: argparse.Namespace) -> int:
     if given := [flag for flag, on in cloud_only.items() if on]:
         raise InputError(f"{', '.join(given)}: not for --variant pose (a pose model trains in "
                          "a few minutes on the CPU, from scratch); leave them out")  # fmt: skip
-    m = train_pose_model(list(args.data), args.out, iters=args.iters,
-                         batch=256 if args.batch is None else args.batch,
-                         lr=args.lr, seed=args.seed)  # fmt: skip
+    try:
+        m = train_pose_model(list(args.data), args.out, iters=args.iters,
+                             batch=256 if args.batch is None else args.batch,
+                             lr=args.lr, seed=args.seed)  # fmt: skip
+    except TrainingDiverged as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
     print(f"done: {args.out}/best.pt; validation position error after 1 and 8 steps "
           f"{m['first_mm']:.2f} and {m['last_mm']:.2f} mm (no motion: {m['still_first_mm']:.2f} "
           f"and {m['still_last_mm']:.2f} mm)")  # fmt: skip

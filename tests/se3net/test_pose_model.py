@@ -1,12 +1,13 @@
 """The pose-space model: its shape code, its frame, its training and the shipped one's pushes."""
 
 import math
+from dataclasses import replace
 
 import pytest
 import torch
 
 from planner.dynamics import PlanState
-from planner.learned import PoseDynamics
+from planner.learned import EnsembleDynamics, PoseDynamics
 from scenarios import load_scenario
 from se3net.checkpoint import CheckpointError, load_checkpoint, model_config
 from se3net.pose_model import (
@@ -86,6 +87,15 @@ def test_training_on_exploration_data_beats_predicting_no_motion(tiny_data, tmp_
         model_config(tmp_path / "run" / "best.pt")
 
 
+def test_a_diverged_training_stops_saying_so_and_writes_nothing(tiny_data, tmp_path):
+    from se3net.train import TrainingDiverged
+
+    with pytest.raises(TrainingDiverged, match="lower --lr"):
+        train_pose_model([str(tiny_data)], tmp_path / "run", iters=200, batch=64, lr=1e12,
+                         horizon=4, progress=False)  # fmt: skip
+    assert not (tmp_path / "run" / "best.pt").exists()
+
+
 def plan_state(scenario, pusher_xy) -> PlanState:
     """A 10 x 5 cm box at the origin, yaw 0, seen from above as a grid of points."""
     xy = box_points(0.10, 0.05).float()
@@ -151,3 +161,38 @@ def test_another_object_is_rolled_as_it_would_be_were_it_the_pushed_one():
     # the first passes 8 cm from it and leaves it where it was
     assert as_other.other_poses[1, -1, 0, 1] > 0.165
     assert as_other.other_poses[0, -1, 0].sub(pose_b).abs().max() < 1e-6
+
+
+def test_the_shape_code_is_read_in_the_objects_own_frame_whatever_its_turn():
+    """A box turned by 0.7 rad, its points turned with it, has the support function of the
+    box unturned (a sign slip in the turn into the object's frame breaks this)."""
+    scenario = load_scenario("single_box")
+    net, _ = load_checkpoint("pose", scenario=scenario)
+    dyn = PoseDynamics(net, scenario)
+    flat = plan_state(scenario, [-0.08, 0.0])
+    yaw, at = 0.7, torch.tensor([0.1, -0.05])
+    c, s = math.cos(yaw), math.sin(yaw)
+    xy = flat.points[:2].reshape(2, -1)
+    turned = torch.tensor([[c, -s], [s, c]]) @ xy + at[:, None]
+    points = torch.cat([turned, flat.points[2:].reshape(1, -1)]).reshape(flat.points.shape)
+    pose = torch.tensor([at[0], at[1], yaw])
+    mask = flat.object_mask & flat.valid
+    a = dyn.support(flat, mask, flat.object_pose, 0.056)
+    b = dyn.support(replace(flat, points=points, object_pose=pose), mask, pose, 0.056)
+    assert a[0] == pytest.approx(0.05, abs=1e-6)
+    assert torch.allclose(a, b, atol=1e-6)
+
+
+def test_an_ensemble_with_a_pose_model_predicts_poses_but_no_clouds():
+    scenario = load_scenario("single_box")
+    net, _ = load_checkpoint("pose", scenario=scenario)
+    one = PoseDynamics(net, scenario, contact_margin_m=0.01)
+    state = plan_state(scenario, [-0.08, 0.0])
+    v = scenario.action.max_speed_m_s
+    actions = torch.tensor([[[v, 0.0]] * 4])
+    with torch.no_grad():
+        both = EnsembleDynamics([one, one]).rollout(state, actions, clouds=True)
+        alone = one.rollout(state, actions)
+    assert both.clouds is None
+    assert torch.allclose(both.object_poses, alone.object_poses)
+    assert both.spread.max() < 1e-5  # the same model twice agrees with itself

@@ -232,6 +232,8 @@ def test_train_and_eval_bad_input_is_exit_code_2(tiny_data, tmp_path, capsys):
         (["train", "--later-fraction", "0.5"], "after the first 1, and there are 1: give more"),
         (["train", "--noise", "loud"], "--noise must be one of none, depth-scaled, depth, assoc-9"),
         (["train", "--batch", "0"], "--batch must be positive, got 0"),
+        (["improve", "--model", "pose"], "is a pose model"),  # before round 0's trials
+        (["study", "--models", "oracle", "pose"], "is a pose model"),  # before the oracle's
         (["train", "--variant", "pose", "--batch", "0"], "--batch must be positive, got 0"),
         (["train", "--variant", "pose", "--seed", "-1"], "--seed must be an integer in"),
         (["improve", "--model", "default"], "does not fit scenario 'tiny'"),
