@@ -215,7 +215,8 @@ def make_dynamics(
     contact_margin_m: float | None = None,
 ) -> Dynamics:
     """A backend by name: ``se3net``/``flow`` (a checkpoint; the shipped model by default;
-    checkpoints joined by ``+``: an ensemble of them), ``oracle`` (needs the ``world`` and
+    a pose model's checkpoint makes a :class:`PoseDynamics`; checkpoints joined by ``+``: an
+    ensemble of them), ``oracle`` (needs the ``world`` and
     the pushed object's index) or ``no-motion``; ``feedback``: how a learned one feeds its
     predicted clouds back (``se3net.rollout.FEEDBACK``); ``contact_margin_m``: within what
     margin of touch a learned one's predicted motions count (``contact_gate``).

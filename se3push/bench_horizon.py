@@ -4,8 +4,9 @@ network for candidates that never come within reach of an object; and what it co
 simulator as the model (every candidate in one batched MuJoCo rollout, ``sim.batch``) and with
 a pose-space model (``se3net.pose_model``: poses rolled, no clouds).
 
-Every figure is a median over repeats of one CEM replan with the shipped SE3-Net rolled as the
-planner rolls it (rendered feedback, the contact gate), on single_box in two states: ``near``
+Every figure is a median over repeats of one CEM replan with the shipped SE3-Net (or the
+shipped pose model, the ``pose_`` figures) rolled as the planner rolls it (rendered feedback,
+the contact gate), on single_box in two states: ``near``
 (the pusher a few centimetres from the box, where most candidates touch it) and ``approach``
 (the world's start, the pusher well away from the box).
 """
@@ -34,8 +35,8 @@ def _states(device: str) -> tuple:
 
 def _replan_ms(preset: str, skip: bool, *, state, scenario, goal, repeats: int, model,
                device: str, world=None) -> float:  # fmt: skip
-    """One CEM replan's median (ms) with the settings of ``preset``: the shipped
-    SE3-Net as the planner rolls it, or, given ``world``, the simulator."""
+    """One CEM replan's median (ms) with the settings of ``preset``: ``model`` (None: the
+    shipped SE3-Net) as the planner rolls it, or, given ``world``, the simulator."""
     from planner import PushCost, make_dynamics, make_planner
     from planner.presets import preset_settings
     from se3push.bench import median_seconds
