@@ -241,7 +241,7 @@ def load_checkpoint(
             )
         cam = scenario.camera
         seen = None if pose else (cfg.width * cfg.stride, cfg.height * cfg.stride)
-        if seen is not None and seen != (cam.width, cam.height):
+        if not pose and seen != (cam.width, cam.height):  # a pose model has no pixels
             raise CheckpointError(
                 f"checkpoint {path} is a {cfg.width}x{cfg.height} network at pixel stride "
                 f"{cfg.stride} (images of {seen[0]}x{seen[1]}), which does not fit the "

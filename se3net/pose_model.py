@@ -201,11 +201,14 @@ def pose_loss(pred: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
     return ((d[..., :2] ** 2).sum(-1) + (YAW_RADIUS_M * yaw) ** 2).mean()
 
 
-def rollout_error(model: PoseModel, w: Windows) -> dict[str, float]:
+def rollout_error(
+    model: PoseModel, w: Windows, pred: torch.Tensor | None = None
+) -> dict[str, float]:
     """Mean position error (mm) after the first and last step of the windows, the model's
-    and predicting no motion's."""
-    with torch.no_grad():
-        pred = model.rollout(w.pose[:, 0], w.pusher, w.actions, w.support)
+    and predicting no motion's; ``pred``: the model's rollout of them, where already made."""
+    if pred is None:
+        with torch.no_grad():
+            pred = model.rollout(w.pose[:, 0], w.pusher, w.actions, w.support)
     err = (pred[..., :2] - w.pose[:, 1:, :2]).norm(dim=-1)
     still = (w.pose[:, :1, :2] - w.pose[:, 1:, :2]).norm(dim=-1)
     return {"first_mm": 1e3 * float(err[:, 0].mean()), "last_mm": 1e3 * float(err[:, -1].mean()),
@@ -269,11 +272,11 @@ def train_pose_model(
         sched.step()
         if it % 500 == 0 or it == iters:
             with torch.no_grad():
-                v = float(pose_loss(model.rollout(val.pose[:, 0], val.pusher, val.actions,
-                                                  val.support), val.pose[:, 1:]))  # fmt: skip
+                seen = model.rollout(val.pose[:, 0], val.pusher, val.actions, val.support)
+            v = float(pose_loss(seen, val.pose[:, 1:]))
             if v < best:
                 best = v
-                metrics = {"iteration": it, "val_loss": v, **rollout_error(model, val)}
+                metrics = {"iteration": it, "val_loss": v, **rollout_error(model, val, seen)}
                 kept = copy.deepcopy(model.state_dict())
     # written once, at the end: an interrupted run leaves no run behind, and runs again whole
     model.load_state_dict(kept)
