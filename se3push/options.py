@@ -3,14 +3,17 @@ how a command's errors become exit codes.
 
 Input that was checked and refused (``scenarios.InputError``: a bad scenario, argument, file or
 folder) is printed as one line and gives exit code 2; a full or read-only output folder too;
-Ctrl-C gives one line and exit code 130; any other exception is a bug and shows its traceback
-(exit code 1).
+Ctrl-C gives one line and exit code 130; a reader that stops early (``| head``) ends the
+command quietly with exit code 141, as a shell's SIGPIPE would; any other exception is a bug
+and shows its traceback (exit code 1).
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
+import os
+import signal
 import sys
 from collections.abc import Callable
 
@@ -135,6 +138,10 @@ def run_command(run: Callable[[argparse.Namespace], int], args: argparse.Namespa
 
     try:
         return run(args)
+    except BrokenPipeError:  # a reader that stopped early (`| head`): not an error of ours
+        # what is still buffered would raise again at exit; send it nowhere
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + int(signal.SIGPIPE)
     except USER_ERRORS as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -26,6 +26,16 @@ def test_scenarios_lists_each_with_a_description(capsys):
     assert all(len(line.split(maxsplit=1)[1]) > 10 for line in lines)
 
 
+def test_a_reader_that_stops_early_ends_the_command_quietly():
+    # the read end closed before the command prints: its first line meets a broken pipe
+    proc = subprocess.Popen([sys.executable, "-m", "se3push.cli", "scenarios"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) == 141  # as a shell reports a process that SIGPIPE ended
+    assert err == ""  # no traceback, not even from the flush at exit
+
+
 def test_render_writes_a_png_showing_object_flow(tmp_path, capsys):
     out = tmp_path / "scene.png"
     assert main(["render", "--scenario", "tiny", "--seed", "3", "--out", str(out)]) == 0
