@@ -116,8 +116,10 @@ class PlannerConfig:
         where there are fewer steps than knots."""
         steps = max(1, round(self.horizon_s / dt_s))
         if self.knots > steps:
-            raise InputError(f"knots must be 0 (one per step) or 1..{steps} (the steps of "
-                             f"{dt_s:g} s in horizon_s {self.horizon_s:g}), got {self.knots}")
+            raise InputError(
+                f"knots must be 0 (one per step) or 1..{steps} (the steps of "
+                f"{dt_s:g} s in horizon_s {self.horizon_s:g}), got {self.knots}"
+            )
         return steps
 
     def population(self, iteration: int) -> int:

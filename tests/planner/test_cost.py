@@ -97,8 +97,9 @@ def test_the_disturbance_term_keeps_the_other_objects_in_place():
     for w in (0.0, 1.0):
         cost = PushCost(scenario, torch.tensor([0.12, 0.0, 0.0]),
                         dataclasses.replace(TOY_COST, w_disturb=w))  # fmt: skip
-        cfg = PlannerConfig(horizon_s=1.2, samples=256, elites=16, iterations=8, colour=0.0,
-                            shrink=1.0)
+        cfg = PlannerConfig(
+            horizon_s=1.2, samples=256, elites=16, iterations=8, colour=0.0, shrink=1.0
+        )
         _, info = make_planner("cem", dyn, cost, scenario, cfg).plan(state)
         U = torch.from_numpy(info.actions).float()[None]
         end = dyn.rollout(state, U).other_poses[0, -1, 0, :2]

@@ -87,6 +87,9 @@ def test_bad_spline_settings_are_refused(fields, message):
 def test_more_knots_than_the_horizon_has_steps_are_refused():
     cfg = PlannerConfig(horizon_s=1.2, knots=9)
     assert PlannerConfig(horizon_s=1.2, knots=8).steps(0.15) == 8
-    with pytest.raises(InputError, match=r"knots must be 0 \(one per step\) or 1..8 \(the steps "
-                                         r"of 0.15 s in horizon_s 1.2\), got 9"):
+    with pytest.raises(
+        InputError,
+        match=r"knots must be 0 \(one per step\) or 1..8 \(the steps "
+        r"of 0.15 s in horizon_s 1.2\), got 9",
+    ):
         cfg.steps(0.15)
