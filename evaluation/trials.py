@@ -23,7 +23,7 @@ import numpy as np
 
 from evaluation.diagnostics import path_efficiency, pooled, unseen_share
 from evaluation.records import SCHEMA, migrate_config
-from planner.base import SOME_PLANNER_SETTINGS
+from planner.base import ONE_PLANNER_SETTINGS
 from planner.loop import TIGHT, TOLERANCES, PushConfig, check_tolerance, push_scenario, run_push
 from planner.settings import PlanSettings
 from scenarios import InputError, Scenario, check_seed, load_scenario
@@ -293,7 +293,7 @@ def _compared(meta: dict) -> dict:
     plan["optimiser"] = {
         k: v
         for k, v in plan["optimiser"].items()
-        if mine in SOME_PLANNER_SETTINGS.get(k, (mine,)) and k != "seed"
+        if ONE_PLANNER_SETTINGS.get(k, mine) == mine and k != "seed"
     }
     if meta.get("model") in ("oracle", "no-motion"):  # how a learned model is rolled
         del plan["rollout"]

@@ -102,9 +102,7 @@ class PlannerConfig:
     grad_lr: float = 0.02
     """grad: Adam step size (m/s)"""
     grad_init_samples: int = 16
-    """grad and sqp: candidate starts, this many in all: the warm start and random sequences
-    about it (a local optimiser started at the warm start alone stalls where the model's
-    prediction is flat, short of contact)"""
+    """grad: candidate starts, this many in all: the warm start and random sequences about it"""
     grad_starts: int = 4
     """grad: Adam runs from the best this many of those at once (one batched rollout a
     step), and the plan is the best sequence any of them reached"""
@@ -162,15 +160,15 @@ class PlannerConfig:
             raise InputError(f"warm_std must be positive or None, got {self.warm_std}")
 
 
-SOME_PLANNER_SETTINGS = {
-    "temperature": ("mppi",),
-    "grad_steps": ("grad",),
-    "grad_lr": ("grad",),
-    "grad_init_samples": ("grad", "sqp"),
-    "grad_starts": ("grad",),
-    "trust_radius": ("sqp",),
+ONE_PLANNER_SETTINGS = {
+    "temperature": "mppi",
+    "grad_steps": "grad",
+    "grad_lr": "grad",
+    "grad_init_samples": "grad",
+    "grad_starts": "grad",
+    "trust_radius": "sqp",
 }
-"""PlannerConfig fields that only these optimisers read: runs of the others do not depend on
+"""PlannerConfig fields that one optimiser alone reads: runs of the others do not depend on
 them (so a trial folder of cem trials is not another set for a new grad setting)"""
 
 

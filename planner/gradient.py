@@ -20,20 +20,6 @@ def _require_gradients(planner: Planner) -> None:
         )
 
 
-def _sampled_starts(
-    planner: Planner, state: PlanState, U0: torch.Tensor, best: Best
-) -> torch.Tensor:
-    """(S,M,2) the warm start U0 and ``grad_init_samples - 1`` random sequences about it, all
-    evaluated in one batched rollout and offered to ``best``; sorted from the cheapest."""
-    c = planner.cfg
-    starts = planner.clamp(U0 + c.init_std * planner.bound * planner.noise(c.grad_init_samples))
-    starts[0] = U0
-    with torch.inference_mode():
-        cost, rollout = planner.evaluate(state, starts)
-    best.offer(starts, cost, rollout)
-    return starts[torch.argsort(cost.nan_to_num(nan=math.inf))]
-
-
 class GradPlanner(Planner):
     """Adam on action sequences through the differentiable rollout, projected onto the
     bounds after every step; it starts from the best few of the warm start and random
@@ -46,8 +32,14 @@ class GradPlanner(Planner):
     def _optimise(self, state: PlanState, U0: torch.Tensor) -> tuple[Best, int]:
         _require_gradients(self)
         c = self.cfg
+        starts = self.clamp(U0 + c.init_std * self.bound * self.noise(c.grad_init_samples))
+        starts[0] = U0
         best = Best()
-        U = _sampled_starts(self, state, U0, best)[: c.grad_starts].clone().requires_grad_()
+        with torch.inference_mode():
+            cost, rollout = self.evaluate(state, starts)
+        best.offer(starts, cost, rollout)
+        order = torch.argsort(cost.nan_to_num(nan=math.inf))[: c.grad_starts]
+        U = starts[order].clone().requires_grad_()
         opt = torch.optim.Adam([U], lr=c.grad_lr)  # elementwise: the starts stay independent
         for _ in range(c.grad_steps):
             cost, rollout = self.evaluate(state, U)
@@ -63,9 +55,8 @@ class GradPlanner(Planner):
 
 
 class SQPPlanner(Planner):
-    """Sequential quadratic programming (Gauss-Newton on the cost's residuals), from the
-    cheapest of the warm start and random sequences about it: linearise the rollout around
-    that sequence with autograd Jacobians, solve a trust-region QP with
+    """Sequential quadratic programming (Gauss-Newton on the cost's residuals): linearise the
+    rollout around the nominal sequence with autograd Jacobians, solve a trust-region QP with
     the box bounds (cvxpy on OSQP, compiled once as a parametrised problem), and accept a step
     only if the true rollout cost drops.
 
@@ -140,7 +131,7 @@ class SQPPlanner(Planner):
     def _optimise(self, state: PlanState, U0: torch.Tensor) -> tuple[torch.Tensor, int]:
         _require_gradients(self)
         c = self.cfg
-        U = _sampled_starts(self, state, U0, Best())[0].flatten().clone()
+        U = U0.flatten().clone()
         with torch.no_grad():
             r0 = self._residuals(state, U)
         cost = float((r0**2).sum())
