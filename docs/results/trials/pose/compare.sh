@@ -53,3 +53,19 @@ echo "== fresh set (--seed 11), all three scenarios pooled: the pose model again
 echo "== fresh set (--seed 11), all three scenarios pooled: the pose model against the simulator, the default"
 { echo "$D/s11_pose_default $D/s11_oracle_default"
   for s in single_box multi_object; do echo "$D/s11_pose_default_$s $D/s11_oracle_default_$s"; done; } | pool
+[ -f "$D/s11_oracle_long_multi_object/summary.json" ] || exit 0  # run_seed11_long.sh still running
+s11() {  # the seed-11 folder of model $1, plan $2, scenario $3 (its held-out folders are unsuffixed)
+    if [ "$3" = heldout_objects ]; then echo "$D/s11_$1_$2"; else echo "$D/s11_$1_$2_$3"; fi
+}
+s11_all() {  # "A B" for the three scenarios: model $1 plan $2 against model $3 plan $4
+    for s in single_box multi_object heldout_objects; do echo "$(s11 "$1" "$2" $s) $(s11 "$3" "$4" $s)"; done
+}
+echo "== fresh set (--seed 11), long against the default: the pose model"
+s11_all pose long pose default | each
+s11_all pose long pose default | pool
+echo "== fresh set (--seed 11), long against the default: the simulator"
+s11_all oracle long oracle default | each
+s11_all oracle long oracle default | pool
+echo "== fresh set (--seed 11), the pose model against the simulator, both long"
+s11_all pose long oracle long | each
+s11_all pose long oracle long | pool
