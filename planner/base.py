@@ -19,6 +19,9 @@ from scenarios import InputError, Scenario
 
 SPLINES = ("zoh", "linear", "cubic")
 """how knots make actions (``PlannerConfig.spline``)"""
+MAX_STEPS = 100
+"""the most control steps a plan looks ahead (15 s at 0.15 s a step, a trial's budget and
+more): a horizon of a million steps would only exhaust the memory"""
 
 
 def spline_basis(horizon: int, knots: int, spline: str) -> np.ndarray:
@@ -112,9 +115,15 @@ class PlannerConfig:
     """seed of the planner's generator"""
 
     def steps(self, dt_s: float) -> int:
-        """The horizon in control steps of ``dt_s`` seconds (at least one), or an InputError
-        where there are fewer steps than knots."""
-        steps = max(1, round(self.horizon_s / dt_s))
+        """The horizon in control steps of ``dt_s`` seconds (rounded to the nearer, halves up;
+        at least one), or an InputError where there are fewer steps than knots or more than
+        ``MAX_STEPS``."""
+        steps = max(1, math.floor(self.horizon_s / dt_s + 0.5 + 1e-9))
+        if steps > MAX_STEPS:
+            raise InputError(
+                f"horizon_s {self.horizon_s:g} is {steps} steps of {dt_s:g} s; a plan looks at "
+                f"most {MAX_STEPS} steps ahead ({MAX_STEPS * dt_s:g} s)"
+            )
         if self.knots > steps:
             raise InputError(
                 f"knots must be 0 (one per step) or 1..{steps} (the steps of "
@@ -147,17 +156,17 @@ class PlannerConfig:
             )
         if self.elites > self.samples:
             raise InputError(f"elites ({self.elites}) cannot exceed samples ({self.samples})")
-        if not self.shrink >= 1.0:
-            raise InputError(f"shrink must be at least 1, got {self.shrink}")
+        if not (math.isfinite(self.shrink) and self.shrink >= 1.0):
+            raise InputError(f"shrink must be a number of at least 1, got {self.shrink}")
         if not 0.0 <= self.keep_elites <= 1.0:
             raise InputError(f"keep_elites must be in [0, 1], got {self.keep_elites}")
         if not 0.0 <= self.colour < 1.0:
             raise InputError(f"colour must be in [0, 1), got {self.colour}")
         for name in ("init_std", "min_std", "temperature", "grad_lr", "trust_radius"):
-            if not getattr(self, name) > 0:
-                raise InputError(f"{name} must be positive, got {getattr(self, name)}")
-        if self.warm_std is not None and not self.warm_std > 0:
-            raise InputError(f"warm_std must be positive or None, got {self.warm_std}")
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise InputError(f"{name} must be a positive number, got {getattr(self, name)}")
+        if self.warm_std is not None and not (math.isfinite(self.warm_std) and self.warm_std > 0):
+            raise InputError(f"warm_std must be a positive number or None, got {self.warm_std}")
 
 
 ONE_PLANNER_SETTINGS = {

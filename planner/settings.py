@@ -175,9 +175,13 @@ def parse_assignment(text: str) -> dict[str, Any]:
 def read_toml(path: str | Path) -> dict[str, Any]:
     """A settings file's tables, or an InputError naming the file."""
     try:
-        return tomllib.loads(Path(path).read_text())
+        return tomllib.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise InputError(f"--config {path}: no such file") from None
+    except IsADirectoryError:
+        raise InputError(f"--config {path} is a folder: give a TOML file") from None
+    except UnicodeDecodeError:
+        raise InputError(f"--config {path} is not UTF-8 text: give a TOML file") from None
     except tomllib.TOMLDecodeError as err:
         raise InputError(f"--config {path} is not valid TOML: {err}") from None
 

@@ -330,7 +330,9 @@ def test_one_nan_cost_does_not_spoil_the_later_samples(name):
 @pytest.mark.parametrize(
     ("field", "value"),
     [("colour", 1.0), ("colour", -0.1), ("warm_std", 0.0), ("temperature", 0.0), ("shrink", 0.5),
-     ("keep_elites", 1.5), ("init_std", -1.0), ("elites", 1), ("grad_init_samples", 0)],
+     ("keep_elites", 1.5), ("init_std", -1.0), ("elites", 1), ("grad_init_samples", 0),
+     ("init_std", float("inf")), ("grad_lr", float("inf")), ("trust_radius", float("nan")),
+     ("warm_std", float("inf")), ("shrink", float("inf"))],
 )  # fmt: skip
 def test_unusable_planner_settings_are_refused(field, value):
     from scenarios import InputError

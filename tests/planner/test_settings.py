@@ -82,6 +82,11 @@ def test_an_unknown_setting_on_the_command_line_is_exit_code_2(tmp_path, capsys)
     assert "--set takes NAME=VALUE" in capsys.readouterr().err
     assert main(["config", "--config", str(tmp_path / "missing.toml")]) == 2
     assert "no such file" in capsys.readouterr().err
+    assert main(["config", "--config", str(tmp_path)]) == 2
+    assert "is a folder: give a TOML file" in capsys.readouterr().err
+    (tmp_path / "binary.toml").write_bytes(b"\xff\xfe[cost]")
+    assert main(["config", "--config", str(tmp_path / "binary.toml")]) == 2
+    assert "is not UTF-8 text" in capsys.readouterr().err
 
 
 def test_se3push_config_prints_settings_that_load_back(tmp_path, capsys):

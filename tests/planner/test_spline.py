@@ -93,3 +93,15 @@ def test_more_knots_than_the_horizon_has_steps_are_refused():
         r"of 0.15 s in horizon_s 1.2\), got 9",
     ):
         cfg.steps(0.15)
+
+
+@pytest.mark.parametrize(("horizon_s", "steps"), [(0.225, 2), (0.375, 3), (0.45, 3), (1.2, 8)])
+def test_a_horizon_is_the_nearer_number_of_steps_halves_up(horizon_s, steps):
+    assert PlannerConfig(horizon_s=horizon_s).steps(0.15) == steps
+
+
+def test_a_horizon_too_long_to_plan_is_refused_in_one_line():
+    assert PlannerConfig(horizon_s=15.0).steps(0.15) == 100
+    with pytest.raises(InputError, match=r"horizon_s 1e\+09 is .* steps of 0.15 s; a plan looks "
+                       r"at most 100 steps ahead"):  # fmt: skip
+        PlannerConfig(horizon_s=1e9).steps(0.15)
