@@ -247,6 +247,12 @@ def load_checkpoint(
                 f"{cfg.stride} (images of {seen[0]}x{seen[1]}), which does not fit the "
                 f"{cam.width}x{cam.height} camera of scenario {scenario.name!r}"
             )
+        radius = stored.get("pusher_radius_m") if pose else None
+        if radius is not None and radius != scenario.arm.pusher_radius_m:  # its gap features
+            raise CheckpointError(
+                f"checkpoint {path} is a pose model of a pusher of radius {radius} m; scenario "
+                f"{scenario.name!r} has one of {scenario.arm.pusher_radius_m} m"
+            )
     try:
         if pose:
             model = load_pose_model(blob)

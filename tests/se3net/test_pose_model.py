@@ -109,6 +109,15 @@ def plan_state(scenario, pusher_xy) -> PlanState:
     )  # fmt: skip
 
 
+def test_a_pose_model_is_refused_for_a_pusher_of_another_radius():
+    scenario = load_scenario("single_box")
+    load_checkpoint("pose", scenario=scenario)  # its own pusher: loads
+    wide = replace(scenario, arm=replace(scenario.arm, pusher_radius_m=0.03))
+    with pytest.raises(CheckpointError, match="pusher of radius 0.012 m; scenario 'single_box' "
+                       "has one of 0.03 m"):  # fmt: skip
+        load_checkpoint("pose", scenario=wide)
+
+
 def test_the_shipped_pose_model_pushes_a_box_ahead_of_the_pusher_and_leaves_it_otherwise():
     scenario = load_scenario("single_box")
     net, _ = load_checkpoint("pose", scenario=scenario)
