@@ -137,9 +137,11 @@ class SQPPlanner(Planner):
         cost = float((r0**2).sum())
         J = None  # the Jacobian at U, computed when a step from U is first needed
         radius = c.trust_radius
+        run = 0
         for _ in range(c.iterations):
             if radius < 1e-4 * self.bound or not math.isfinite(cost):
                 break
+            run += 1
             if J is None:
                 J = self._jacobian(state, U)
                 if not torch.isfinite(J).all():
@@ -163,4 +165,4 @@ class SQPPlanner(Planner):
             elif rho < self.shrink_below:
                 radius *= 0.5
             U, cost, r0, J = trial, trial_cost, r_trial, None
-        return U.view(self.n_knots, 2), c.iterations
+        return U.view(self.n_knots, 2), run

@@ -40,8 +40,8 @@ def contact_gate(
     """(K,H,3) an object's predicted poses with every step's motion kept only where a mover
     could touch it: nothing moves an object from afar.
 
-    A step's predicted motion is scaled by the gate of the nearest mover: 1 where the
-    mover's path over the step (``path[:, h]`` to ``path[:, h + 1]``, (K,H+1,2)) passes
+    A step's predicted motion is scaled by the widest open of the movers' gates, each 1 where
+    the mover's path over the step (``path[:, h]`` to ``path[:, h + 1]``, (K,H+1,2)) passes
     within its ``reach`` of where the object is, falling to 0 over a few millimetres
     (``CONTACT_SOFTNESS_M``) beyond it. A learned model predicts small motions of objects
     nothing touches, and a planner that believes them shuns moves that pass near the object
@@ -126,8 +126,8 @@ class LearnedDynamics:
         the whole horizon (``SKIP_BEYOND_M`` beyond the gate's reach) is not rolled through the
         network: the gate would keep under 3e-7 of whatever motion the network predicted for
         it, so its objects stay where they are, as in the full rollout. Only where no gradient
-        is taken (CEM and MPPI evaluate under inference mode): the choice depends on the
-        actions."""
+        is taken (every CEM and MPPI rollout; the rollouts grad and SQP only score), since
+        the choice depends on the actions."""
         if (
             self.contact_margin is None
             or clouds

@@ -112,6 +112,16 @@ def test_sqp_steps_stay_in_the_trust_region_when_osqp_stops_at_its_iteration_lim
     assert np.abs(info.actions).max() <= cfg.trust_radius + 1e-6
 
 
+def test_sqp_reports_the_iterations_it_ran():
+    cost = PushCost(SCENARIO, torch.tensor((0.1, 0.05, 0.0)), TOY_COST)
+    tiny = PlannerConfig(iterations=6, trust_radius=1e-9)  # below its stopping radius at once
+    _, info = make_planner("sqp", CarriedDisk(DT), cost, SCENARIO, tiny).plan(toy_state())
+    assert info.iterations == 0 and not info.actions.any()
+    _, info = make_planner("sqp", CarriedDisk(DT), cost, SCENARIO,
+                           PlannerConfig(iterations=6)).plan(toy_state())  # fmt: skip
+    assert 1 <= info.iterations <= 6 and info.actions.any()
+
+
 def test_sqp_trust_region_grows_after_good_steps():
     goal = (0.12, -0.09, 0.0)  # the optimum saturates the actions (0.15 m/s)
     cost = PushCost(SCENARIO, torch.tensor(goal), TOY_COST)
