@@ -7,6 +7,7 @@ exit codes are ``se3push.options.run_command``'s.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -103,7 +104,12 @@ def _cmd_trials(args: argparse.Namespace) -> int:
     s = run_trials(cfg, args.out, workers=args.workers, threads=args.threads, **backend(args))
     print(format_summary(s, f"{args.model} / {cfg.plan.planner} on {args.scenario}, "
                             f"{s['trials']} trials (seed {args.seed})"))  # fmt: skip
-    print(f"wrote {args.out}/trials.jsonl, summary.json, paths.png")
+    held = json.loads(Path(args.out, "config.json").read_text())["n"]
+    if held > cfg.n:  # a prefix of the folder's set: run_trials wrote nothing
+        print(f"summarised the first {cfg.n} of the {held} trials in {args.out}; its files "
+              "are unchanged")  # fmt: skip
+    else:
+        print(f"wrote {args.out}/trials.jsonl, summary.json, paths.png")
     return 0
 
 

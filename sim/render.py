@@ -82,11 +82,19 @@ def draw_example(
 
 
 def save_figure(fig: Any, out: str | Path) -> None:
+    """Write ``fig`` to ``out`` (its format from the suffix) atomically, and close it: an
+    interrupted command leaves the earlier picture or none, never a cut one."""
+    import io
+
+    from sim.shards import atomic_write_bytes
+
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(out, dpi=100)
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=100, format=out.suffix.lstrip(".") or "png")
     pyplot().close(fig)
+    atomic_write_bytes(out, buf.getvalue())
 
 
 def render_scene(scenario: str, seed: int, out: str | Path, *, max_steps: int = 40) -> dict:

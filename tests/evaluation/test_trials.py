@@ -159,6 +159,15 @@ def test_trials_command_and_bad_input(tmp_path, capsys):
     )
     assert "success (2 cm, 10 deg)" in capsys.readouterr().out
     assert json.loads((out / "summary.json").read_text())["trials"] == 1
+    assert main(["trials", "--scenario", "tiny", "--n", "2", "--model", "no-motion",
+                 "--max-steps", "2", "--out", str(out)]) == 0  # fmt: skip
+    assert f"wrote {out}/trials.jsonl, summary.json" in capsys.readouterr().out
+    assert main(["trials", "--scenario", "tiny", "--n", "1", "--model", "no-motion",
+                 "--max-steps", "2", "--out", str(out)]) == 0  # fmt: skip
+    said = capsys.readouterr().out
+    assert f"summarised the first 1 of the 2 trials in {out}; its files are unchanged" in said
+    assert "wrote" not in said
+    assert json.loads((out / "summary.json").read_text())["trials"] == 2
     assert main(["trials", "--scenario", "tiny", "--n", "0", "--out", str(tmp_path / "x")]) == 2
     assert "--n and --max-steps must be positive" in capsys.readouterr().err
 

@@ -124,3 +124,27 @@ def test_ctrl_c_stops_a_pool_at_once_with_one_line_and_exit_130(tmp_path):
     assert err.strip().splitlines()[-1].startswith("interrupted:")
     done = len((out / "trials.jsonl").read_text().splitlines())
     assert done < 100  # it stopped then, it did not finish the running trials first
+
+
+def test_a_picture_cut_short_leaves_the_one_before(tmp_path):
+    from sim.render import pyplot, save_figure
+
+    out = tmp_path / "paths.png"
+    fig = pyplot().figure()
+    save_figure(fig, out)
+    before = out.read_bytes()
+    fig = pyplot().figure()
+
+    def dies_half_way(target, **kwargs):  # as an interrupted savefig would: bytes, then death
+        if isinstance(target, (str, Path)):
+            Path(target).write_bytes(before[:10])
+        else:
+            target.write(before[:10])
+        raise KeyboardInterrupt
+
+    fig.savefig = dies_half_way
+    with pytest.raises(KeyboardInterrupt):
+        save_figure(fig, out)
+    assert out.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["paths.png"]
+    pyplot().close(fig)
