@@ -127,8 +127,15 @@ def read_trials(folder: str | Path) -> tuple[dict[str, Any], dict[int, dict[str,
             raise InputError(
                 f"{folder} has no {path.name}: give a folder written by `se3push trials --out`"
             )
+
+    def text(path: Path) -> str:
+        try:
+            return path.read_text(encoding="utf-8")
+        except UnicodeDecodeError:
+            raise InputError(f"{path} is not UTF-8 text; is it a trial folder's?") from None
+
     records = {}
-    for line in log.read_text().splitlines():
+    for line in text(log).splitlines():
         try:
             rec = json.loads(line)
         except json.JSONDecodeError:
@@ -138,15 +145,31 @@ def read_trials(folder: str | Path) -> tuple[dict[str, Any], dict[int, dict[str,
         missing = [k for k in RECORD_KEYS if k not in rec]
         if missing:
             raise InputError(f"{log}: a record lacks {', '.join(missing)}; is it a trial log?")
+        if type(rec["trial"]) is not int:
+            raise InputError(f"{log}: a record's trial is {rec['trial']!r}, not a trial's "
+                             "number; was the log edited?")  # fmt: skip
+        odd = [k for k in RECORD_KEYS if k.startswith("success_") and type(rec[k]) is not bool]
+        if odd:
+            raise InputError(f"{log}: a record's {odd[0]} is {rec[odd[0]]!r}, not true or "
+                             "false; was the log edited?")  # fmt: skip
         records[rec["trial"]] = migrate_record(rec)
     try:
-        config = json.loads(meta.read_text())
+        config = json.loads(text(meta))
     except json.JSONDecodeError:
         config = None
-    if not isinstance(config, dict):
+    if not isinstance(config, dict) or not _tolerance_ok(config.get("tolerance", TIGHT)):
         raise InputError(f"{meta} is not a trials configuration (cut or edited?); run the "
                          "folder's `se3push trials` command again to rewrite it")  # fmt: skip
     return config, records
+
+
+def _tolerance_ok(tolerance: Any) -> bool:
+    """Whether a configuration's ``tolerance`` is a position (m) and a yaw (deg)."""
+    return (
+        isinstance(tolerance, list | tuple)
+        and len(tolerance) == 2
+        and all(isinstance(x, int | float) and not isinstance(x, bool) for x in tolerance)
+    )
 
 
 def _draw(config: dict[str, Any]) -> dict[str, Any]:
@@ -236,6 +259,15 @@ def compare_trials(
             f"measure that success; run them with `se3push trials --tolerance {tolerance}`"
         )
 
+    for folder, recs in ((a, recs_a), (b, recs_b)):
+        for i in trials:
+            lacking = [name for name in measured if f"success_{name}" not in recs[i]]
+            if lacking:
+                raise InputError(
+                    f"{folder}: trial {i}'s record lacks success_{lacking[0]}, which its "
+                    "config.json says was measured; was the log edited?"
+                )
+
     def outcomes(name: str) -> tuple[list[bool], list[bool]]:
         key = f"success_{name}"
         return tuple([bool(recs[i][key]) for i in trials] for recs in (recs_a, recs_b))
@@ -283,7 +315,13 @@ def _groups(
                 f"{folder}: trial {i}'s record does not say what it pushed (a record from "
                 "before pushed_object was kept); --by needs it: rerun the folder's trials"
             )
-        label = " ".join(GROUPINGS[k](obj) for k in by)
+        try:
+            label = " ".join(GROUPINGS[k](obj) for k in by)
+        except (KeyError, TypeError, ValueError):
+            raise InputError(
+                f"{folder}: trial {i}'s pushed_object ({obj!r}) lacks what --by "
+                f"{' '.join(by)} groups by; was the log edited?"
+            ) from None
         xs, ys = split.setdefault(label, ([], []))
         xs.append(x)
         ys.append(y)

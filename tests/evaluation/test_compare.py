@@ -250,3 +250,52 @@ def test_a_damaged_folder_is_refused_in_one_line(folders, capsys):
     (b / "trials.jsonl").write_text("7\n")
     assert main(["compare", str(b), str(b)]) == 2
     assert "a line is not a trial record" in capsys.readouterr().err
+
+
+def _edit_first_record(folder, **changes):
+    lines = (folder / "trials.jsonl").read_text().splitlines()
+    first = json.loads(lines[0])
+    for key, value in changes.items():
+        if value is None:
+            first.pop(key)
+        else:
+            first[key] = value
+    (folder / "trials.jsonl").write_text("\n".join([json.dumps(first), *lines[1:]]) + "\n")
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (lambda a: (a / "trials.jsonl").write_bytes(b"\xff\xfe"), "trials.jsonl is not UTF-8 text"),
+        (lambda a: _edit_first_record(a, trial=[0]),
+         "a record's trial is [0], not a trial's number"),
+        (lambda a: _edit_first_record(a, success_tight="yes"),
+         "a record's success_tight is 'yes', not true or false"),
+        (lambda a: (a / "config.json").write_text(json.dumps(
+            {**json.loads((a / "config.json").read_text()), "tolerance": "precise"})),
+         "config.json is not a trials configuration"),
+        (lambda a: _edit_first_record(a, pushed_object={"mass_kg": 0.3}),
+         "trial 0's pushed_object ({'mass_kg': 0.3}) lacks what --by shape groups by"),
+    ],
+)  # fmt: skip
+def test_an_edited_log_is_refused_in_one_line(folders, capsys, damage, message):
+    a, b = folders
+    damage(a)
+    assert main(["compare", str(a), str(b), "--by", "shape"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+
+
+def test_a_record_without_a_success_its_config_measured_is_refused(folders, capsys):
+    a, b = folders
+    for folder in (a, b):  # both ran on to 1 cm and 5 deg, but A's first record lost it
+        meta = json.loads((folder / "config.json").read_text())
+        (folder / "config.json").write_text(json.dumps({**meta, "tolerance": [0.01, 5.0]}))
+        lines = [json.loads(x) for x in (folder / "trials.jsonl").read_text().splitlines()]
+        (folder / "trials.jsonl").write_text(
+            "".join(json.dumps({**r, "success_precise": r["success_tight"]}) + "\n" for r in lines)
+        )
+    _edit_first_record(a, success_precise=None)
+    assert main(["compare", str(a), str(b)]) == 2
+    err = capsys.readouterr().err
+    assert "trial 0's record lacks success_precise, which its config.json says was measured" in err
