@@ -5,6 +5,8 @@ bad input."""
 from __future__ import annotations
 
 import argparse
+import contextlib
+import sys
 from collections.abc import Sequence
 
 from se3push.options import (
@@ -74,16 +76,19 @@ def _push(args: argparse.Namespace) -> int:
         from integrations.viz import MeshcatVisualiser
 
         viz = MeshcatVisualiser(live=args.viz, record=args.record)
-    if args.threads is None:
-        result = run_push(cfg, on_step=show, viz=viz)
-    else:
-        from evaluation.trials import worker_threads
-        from sim.jobs import torch_threads
-
-        with torch_threads(worker_threads(args.threads)):
+    # with --json, stdout is the JSON line alone: the rest (meshcat's URL, the file written)
+    # goes to stderr
+    with contextlib.redirect_stdout(sys.stderr if args.json else sys.stdout):
+        if args.threads is None:
             result = run_push(cfg, on_step=show, viz=viz)
-    if args.record:
-        print(f"wrote {args.record} ({viz.frames} frames)")
+        else:
+            from evaluation.trials import worker_threads
+            from sim.jobs import torch_threads
+
+            with torch_threads(worker_threads(args.threads)):
+                result = run_push(cfg, on_step=show, viz=viz)
+        if args.record:
+            print(f"wrote {args.record} ({viz.frames} frames)")
     reached = within((result.final_pos_err_m, result.final_yaw_err_deg), cfg.tolerance)
     if args.json:
         print(json.dumps(result.summary()))

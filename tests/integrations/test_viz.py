@@ -1,4 +1,5 @@
 import base64
+import json
 import math
 import re
 import shutil
@@ -96,6 +97,11 @@ def test_plan_push_record_flag(tmp_path, capsys):
     assert plan_push_main(args) == 1
     assert f"wrote {out} (2 frames)" in capsys.readouterr().out
     assert out.stat().st_size > 100_000
+    # with --json, stdout is the result's JSON alone (meshcat's URL and the file on stderr)
+    assert plan_push_main([*args, "--json"]) == 1
+    said = capsys.readouterr()
+    assert json.loads(said.out)["steps"] == 2
+    assert f"wrote {out} (2 frames)" in said.err
     # a folder is refused before the push, not after it
     args[-1] = str(tmp_path)
     assert plan_push_main(args) == 2
