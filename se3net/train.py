@@ -98,8 +98,12 @@ class TrainConfig:
                 raise InputError(
                     f"--{name.replace('_', '-')} must be positive, got {getattr(self, name)}"
                 )
-        if not self.lr > 0:
-            raise InputError(f"--lr must be positive, got {self.lr}")
+        if self.keep_every < 0:
+            raise InputError(
+                f"--keep-every must be 0 (no snapshots) or more, got {self.keep_every}"
+            )
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise InputError(f"--lr must be a positive number, got {self.lr}")
         if not 0.0 <= self.later_fraction < 1.0:
             raise InputError(f"--later-fraction must be in [0, 1), got {self.later_fraction}")
         if self.later_from < 1:
@@ -223,9 +227,11 @@ def draw_batch(ds: PushDataset, cfg: TrainConfig, rng: np.random.Generator) -> n
                            later[rng.integers(len(later), size=n_later)]])  # fmt: skip
 
 
-def init_weights(cfg: TrainConfig, mcfg: ModelConfig, ds: PushDataset) -> dict[str, Any]:
-    """The weights of ``cfg.init``, refused unless it is the same network for the same data
-    setup (variant, masks, camera, controls)."""
+def init_weights(
+    cfg: TrainConfig, mcfg: ModelConfig, ds: PushDataset
+) -> tuple[dict[str, Any], str]:
+    """The weights of ``cfg.init`` and the hash of the data they learnt from, refused unless it
+    is the same network for the same data setup (variant, masks, camera, controls)."""
     from se3net.checkpoint import CheckpointError, load_checkpoint
 
     net, blob = load_checkpoint(cfg.init, scenario=ds.scenario)
@@ -234,7 +240,7 @@ def init_weights(cfg: TrainConfig, mcfg: ModelConfig, ds: PushDataset) -> dict[s
         diffs = differences(theirs, mcfg.to_dict(), old_has="--init has",
                             new_has="this run has")  # fmt: skip
         raise CheckpointError(f"--init {cfg.init} is another network: {'; '.join(diffs)}")
-    return net.state_dict()
+    return net.state_dict(), str(blob.get("data_hash", ""))
 
 
 def train(cfg: TrainConfig, *, resume: bool = False, progress: bool = True) -> dict[str, Any]:
@@ -279,6 +285,8 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
     ds = PushDataset(cfg.data, split="train", **data)
     val = PushDataset(cfg.data, split="val", **data)
     dt = ds.scenario.action.dt_control_s
+    # what the weights learnt from: this run's data, and with --init the data its start did
+    # (so that --split all refuses a fine-tuned model on its starting point's data too)
     data_hash = "+".join(manifest_hash(m) for m in ds.manifests)
     cam = ds.scenario.camera
     mcfg = ModelConfig(
@@ -291,7 +299,10 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
     )
     model = build_model(mcfg).to(device)
     if cfg.init is not None:
-        model.load_state_dict(init_weights(cfg, mcfg, ds))
+        weights, learnt_from = init_weights(cfg, mcfg, ds)
+        model.load_state_dict(weights)
+        parts = [*data_hash.split("+"), *learnt_from.split("+")]
+        data_hash = "+".join(dict.fromkeys(h for h in parts if h))  # each once, in order
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     rng = np.random.default_rng(cfg.seed)
     gen = torch.Generator(device=device).manual_seed(cfg.seed)
@@ -392,9 +403,15 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
         b = ds.batch(shard(draw_batch(ds, cfg, rng), ranks))  # this process's share
         loss = step_loss(b, {"sigma": sigma, "gamma": gamma, "generator": gen})
         if not torch.isfinite(loss):
+            kept = (
+                f"; --init {last} starts it from the last good state (iteration "
+                f"{figures['iteration']})"
+                if "iteration" in figures
+                else ""
+            )
             raise TrainingDiverged(
-                f"loss became {float(loss.detach())} at step {it + 1}; {last} keeps the last "
-                f"good state (iteration {figures.get('iteration', start)}); lower --lr and --resume"
+                f"loss became {float(loss.detach())} at step {it + 1}: train again with a lower "
+                f"--lr into a new --out folder{kept}"
             )
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -426,9 +443,10 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
             if score < best:
                 best = score
                 checkpoint(out / "best.pt", done, figures, with_state=False)
-            checkpoint(last, done, figures, with_state=True)
             if cfg.keep_every and done % cfg.keep_every == 0:
                 checkpoint(out / f"iter_{done:06d}.pt", done, figures, with_state=False)
+            # last: a run killed before it resumes from the previous one and writes these again
+            checkpoint(last, done, figures, with_state=True)
             bar.write(
                 f"it {done}: train {figures['train_loss']:.4f}, val flow MSE "
                 f"{figures['val_flow_mse_cm2']:.4f} cm^2 "

@@ -92,7 +92,9 @@ def test_nan_loss_stops_with_a_clear_message_and_keeps_the_last_good_checkpoint(
 
     monkeypatch.setattr(train_mod, "point_loss", nan_later)
     with pytest.raises(
-        TrainingDiverged, match=r"loss became nan at step \d+;.*last good state \(iteration 4\)"
+        TrainingDiverged,
+        match=r"loss became nan at step \d+: train again with a lower --lr into a new --out "
+        r"folder; --init .*last.pt starts it from the last good state \(iteration 4\)",
     ):
         train(_cfg(tiny_data, tmp_path), progress=False)
     blob = read_checkpoint(tmp_path / "last.pt")
@@ -341,3 +343,44 @@ def test_noisy_validation_is_worse_than_clean_for_the_same_weights(tiny_data, tm
     assert noisy.noise == "depth" and clean.noise == "none"
     assert noisy.no_motion_mse > clean.no_motion_mse  # 1.5 cm of depth noise on the targets
     assert noisy.flow_mse > clean.flow_mse
+
+
+def test_a_snapshot_is_written_before_the_state_a_resume_starts_from(tiny_data, tmp_path,
+                                                                     monkeypatch):  # fmt: skip
+    real, out = train_mod.save_checkpoint, tmp_path / "run"
+
+    def killed_writing_the_snapshot(path, *args, **kwargs):
+        if path.name == "iter_000008.pt":
+            raise KeyboardInterrupt  # as a kill between the run's files would
+        return real(path, *args, **kwargs)
+
+    cfg = _cfg(tiny_data, out, keep_every=8)  # evaluated at 4 and 8, a snapshot at 8
+    monkeypatch.setattr(train_mod, "save_checkpoint", killed_writing_the_snapshot)
+    with pytest.raises(KeyboardInterrupt):
+        train(cfg, progress=False)
+    monkeypatch.setattr(train_mod, "save_checkpoint", real)
+    train(cfg, resume=True, progress=False)  # from the state before the snapshot, not after
+    assert sorted(p.name for p in out.glob("iter_*.pt")) == ["iter_000008.pt"]
+
+
+def test_a_negative_keep_every_is_refused():
+    with pytest.raises(InputError, match="--keep-every must be 0 \\(no snapshots\\) or more"):
+        TrainConfig(data="d", out="o", keep_every=-1)
+
+
+def test_a_fine_tuned_model_remembers_the_data_its_start_learnt_from(tiny_data, tmp_path):
+    from se3net.checkpoint import refuse_trained_on
+    from sim.dataset import DataConfig, generate
+    from sim.datastore import read_manifest
+
+    other = tmp_path / "other"
+    generate(DataConfig("tiny", episodes=21, steps_per_episode=8, episodes_per_shard=7, seed=5),
+             other, progress=False)  # fmt: skip
+    train(_cfg(other, tmp_path / "start", iters=4), progress=False)
+    train(_cfg(tiny_data, tmp_path / "tuned", iters=4, init=str(tmp_path / "start" / "best.pt")),
+          progress=False)  # fmt: skip
+    tuned = tmp_path / "tuned" / "best.pt"
+    with pytest.raises(CheckpointError, match="was trained on"):  # its start learnt from other
+        refuse_trained_on([tuned], read_manifest(other), other)
+    with pytest.raises(CheckpointError, match="was trained on"):  # and it from tiny_data
+        refuse_trained_on([tuned], read_manifest(tiny_data), tiny_data)
