@@ -35,6 +35,7 @@ from torch import nn
 
 from scenarios import InputError, check_seed
 from se3net.rollout import pusher_path
+from sim.folders import writes_folder
 from sim.planar import wrap_angle
 
 POSE_VARIANT = "pose"
@@ -216,13 +217,15 @@ def rollout_error(
             "still_last_mm": 1e3 * float(still[:, -1].mean())}  # fmt: skip
 
 
+@writes_folder(lambda a: a.arguments["out"])
 def train_pose_model(
     data: list[str], out: str | Path, *, iters: int = 6000, batch: int = 256, lr: float = 1e-3,
     horizon: int = 8, seed: int = 0, progress: bool = True,
 ) -> dict[str, Any]:  # fmt: skip
     """Train a pose model on ``data`` (exploration folders of pusher controls, one arm and
     control step; the scenario of the first), validated every 500 steps; writes
-    ``out``/best.pt, the weights of the lowest validation loss, and returns their metrics."""
+    ``out``/best.pt, the weights of the lowest validation loss, and returns their metrics.
+    It holds ``out`` while it runs (``sim.folders.exclusive``)."""
     from tqdm import tqdm
 
     from se3net.checkpoint import manifest_hash, save_checkpoint

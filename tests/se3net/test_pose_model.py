@@ -87,6 +87,32 @@ def test_training_on_exploration_data_beats_predicting_no_motion(tiny_data, tmp_
         model_config(tmp_path / "run" / "best.pt")
 
 
+def test_a_folder_another_process_is_writing_is_refused(tiny_data, tmp_path):
+    import subprocess
+    import sys
+
+    from scenarios import InputError
+    from sim.folders import LOCK_NAME
+
+    out = tmp_path / "run"
+    out.mkdir()
+    holder = subprocess.Popen(  # holds the folder's lock as a running command would
+        [sys.executable, "-c", "import fcntl, os, sys, time; "
+         f"fd = os.open({str(out / LOCK_NAME)!r}, os.O_RDWR | os.O_CREAT); "
+         "fcntl.flock(fd, fcntl.LOCK_EX); print('held', flush=True); time.sleep(60)"],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(InputError, match="is being written by"):
+            train_pose_model([str(tiny_data)], out, iters=10, batch=64, horizon=4,
+                             progress=False)  # fmt: skip
+    finally:
+        holder.kill()
+        holder.wait()
+    assert not (out / "best.pt").exists()
+
+
 def test_a_diverged_training_stops_saying_so_and_writes_nothing(tiny_data, tmp_path):
     from se3net.train import TrainingDiverged
 
