@@ -23,6 +23,7 @@ lines), so an interrupted run started again continues where it stopped.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -95,11 +96,15 @@ class ImproveConfig:
             object.__setattr__(self, name, (value,) if isinstance(value, str) else tuple(value))
         if not self.scenarios or not self.data:
             raise InputError("improve needs at least one --scenario and one --data folder")
-        for name in ("rounds", "trials_per_round", "heldout", "finetune_iters", "max_steps"):
+        positive = ("rounds", "trials_per_round", "heldout", "finetune_iters", "max_steps",
+                    "batch", "eval_every")  # fmt: skip
+        for name in positive:  # here, not in the fine-tuning: before round 0 runs
             if getattr(self, name) < 1:
                 raise InputError(
                     f"--{name.replace('_', '-')} must be positive, got {getattr(self, name)}"
                 )
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise InputError(f"--lr must be a positive number, got {self.lr}")
 
         if not 0.0 <= self.action_noise <= 1.0:
             raise InputError(f"action noise must be in [0, 1], got {self.action_noise}")

@@ -94,10 +94,10 @@ class StudyConfig:
                 f"two labels in {labels} name one folder ({', '.join(folders)}: '/' and '=' "
                 "become '_'); name the models apart with LABEL=PATH"
             )
-        if self.trials < 1 or self.max_examples < 1:
+        if self.trials < 1 or self.max_examples < 1 or self.max_steps < 1:
             raise InputError(
-                f"--trials and --max-examples must be positive, got {self.trials}, "
-                f"{self.max_examples}"
+                f"--trials, --max-examples and --max-steps must be positive, got {self.trials}, "
+                f"{self.max_examples}, {self.max_steps}"
             )
 
 

@@ -11,6 +11,7 @@ import scenarios
 from evaluation.improve import ImproveConfig, run_improve
 from evaluation.trials import draw_trial
 from planner.presets import preset_settings
+from scenarios import InputError
 from se3net.checkpoint import read_checkpoint
 from se3net.data import PushDataset
 from se3net.train import TrainConfig, train
@@ -176,6 +177,17 @@ def test_the_same_scenario_twice_is_refused_before_anything_is_written(
     with pytest.raises(ValueError, match="each scenario once"):
         run_improve(cfg, tmp_path / "imp")
     assert not (tmp_path / "imp").exists()
+
+
+@pytest.mark.parametrize(("field", "value", "message"), [
+    ("lr", 0.0, "--lr must be a positive number, got 0.0"),
+    ("lr", float("nan"), "--lr must be a positive number, got nan"),
+    ("batch", 0, "--batch must be positive, got 0"),
+    ("eval_every", -1, "--eval-every must be positive, got -1"),
+])  # fmt: skip
+def test_fine_tuning_settings_are_refused_before_round_0_runs(field, value, message):
+    with pytest.raises(InputError, match=message):  # the config, before any trial or file
+        ImproveConfig(scenarios="tiny", model="m", data="d", **{field: value})
 
 
 def test_a_run_from_before_the_planner_options_continues_as_the_planner_before(

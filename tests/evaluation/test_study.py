@@ -61,6 +61,8 @@ def test_model_labels_and_bad_settings():
         StudyConfig("tiny", "d", models=("runs/a/best.pt", "other/a/best.pt"))
     with pytest.raises(ValueError, match="must be positive"):
         StudyConfig("tiny", "d", models=("oracle",), trials=0)
+    with pytest.raises(ValueError, match="--max-steps must be positive, got 1, 10, 0"):
+        StudyConfig("tiny", "d", models=("oracle",), trials=1, max_examples=10, max_steps=0)
     with pytest.raises(ValueError, match="rollout.contact_margin_m must be a distance"):
         resolve_settings(assignments=["rollout.contact_margin_m=-0.01"])
     with pytest.raises(ValueError, match="cost.shaping_fade is one of behind, everywhere"):
