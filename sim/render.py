@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from scenarios import load_scenario
+from scenarios import InputError, check_seed, load_scenario
 from sim.camera import DepthCamera
 from sim.dataset import MOVED_M
 from sim.joint_explore import JointExploration
@@ -97,6 +97,20 @@ def save_figure(fig: Any, out: str | Path) -> None:
     atomic_write_bytes(out, buf.getvalue())
 
 
+def check_figure_path(out: str | Path) -> None:
+    """Refuse, before any work, a picture's path that is a folder or names a format matplotlib
+    cannot write."""
+    from matplotlib.figure import Figure
+
+    out = Path(out)
+    if out.is_dir():
+        raise InputError(f"{out} is a folder; give the picture's file name, e.g. {out}/scene.png")
+    formats = Figure().canvas.get_supported_filetypes()
+    if out.suffix.lstrip(".").lower() not in formats:
+        known = ", ".join("." + f for f in sorted(formats))
+        raise InputError(f"{out}: a picture is one of {known}; got {out.suffix or 'no suffix'!r}")
+
+
 def render_scene(scenario: str, seed: int, out: str | Path, *, max_steps: int = 40) -> dict:
     """Reset ``scenario`` with ``seed``, push toward an object until it moves (at most
     ``max_steps`` steps), and write depth, segmentation and that step's flow to ``out``. With
@@ -106,6 +120,8 @@ def render_scene(scenario: str, seed: int, out: str | Path, *, max_steps: int = 
     Returns:
         a summary: steps taken, pixels per part, max flow (m) of the shown step.
     """
+    check_seed(seed)
+    check_figure_path(out)
     world = PushWorld(load_scenario(scenario))
     rng = np.random.default_rng(seed)
     before = after = world.reset(rng)

@@ -45,6 +45,19 @@ def test_render_writes_a_png_showing_object_flow(tmp_path, capsys):
     assert flow_mm > 1.0  # the push reached the object and the flow shows it
 
 
+@pytest.mark.parametrize(("args", "message"), [
+    (["--seed", "-3", "--out", "{tmp}/a.png"], "--seed must be an integer in [0, 2**63), got -3"),
+    (["--out", "{tmp}"], "is a folder; give the picture's file name"),
+    (["--out", "{tmp}/a.txt"], "a.txt: a picture is one of "),
+])  # fmt: skip
+def test_render_bad_input_is_one_line_and_exit_code_2(args, message, tmp_path, capsys):
+    args = [a.replace("{tmp}", str(tmp_path)) for a in args]
+    assert main(["render", "--scenario", "tiny", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_unknown_scenario_is_exit_code_2_with_the_known_ones(tmp_path, capsys):
     assert main(["render", "--scenario", "nope", "--out", str(tmp_path / "x.png")]) == 2
     err = capsys.readouterr().err
