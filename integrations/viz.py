@@ -213,16 +213,21 @@ class MeshcatVisualiser:
         self.frames += 1
 
     def finish(self) -> None:
-        """Attach the animation, write the HTML file if asked, stop the server."""
+        """Attach the animation, write the HTML file if asked, stop the server. A push that
+        ends in an exception (Ctrl-C, SIGTERM, a bug) still writes what it recorded, but does
+        not wait for Enter."""
         if self.vis is None:
             return
-        self.vis.set_animation(self.anim, play=False)
-        if self.record is not None:
-            self.record.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_bytes(self.record, self.vis.static_html().encode())
-        if self.live and sys.stdin.isatty():
-            input(f"the push is shown at {self.vis.url()}; press Enter to close the visualiser ")
-        self._stop_server()
+        try:
+            self.vis.set_animation(self.anim, play=False)
+            if self.record is not None:
+                self.record.parent.mkdir(parents=True, exist_ok=True)
+                atomic_write_bytes(self.record, self.vis.static_html().encode())
+            if self.live and sys.stdin.isatty() and sys.exc_info()[0] is None:
+                input(f"the push is shown at {self.vis.url()}; press Enter to close the "
+                      "visualiser ")  # fmt: skip
+        finally:
+            self._stop_server()
 
     def _stop_server(self) -> None:
         """Never leave meshcat's server behind."""

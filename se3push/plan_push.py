@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -50,6 +51,10 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _terminated(signum: int, _frame: object) -> None:
+    raise SystemExit(128 + signum)
+
+
 def _push(args: argparse.Namespace) -> int:
     import json
     import math
@@ -76,6 +81,9 @@ def _push(args: argparse.Namespace) -> int:
         from integrations.viz import MeshcatVisualiser
 
         viz = MeshcatVisualiser(live=args.viz, record=args.record)
+        # SIGTERM ends the push as an exception would, so that meshcat's server is stopped
+        # (its own cleanup runs only at a normal exit)
+        signal.signal(signal.SIGTERM, _terminated)
     # with --json, stdout is the JSON line alone: the rest (meshcat's URL, the file written)
     # goes to stderr
     with contextlib.redirect_stdout(sys.stderr if args.json else sys.stdout):

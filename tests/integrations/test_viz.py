@@ -169,3 +169,47 @@ def test_a_recording_draws_the_table_and_the_object_in_a_real_browser(tmp_path):
     # the object sits on the table: its pixels lie within the table's extent
     oy, ox = obj.nonzero()
     assert rows.min() <= np.median(oy) <= rows.max() and cols.min() <= np.median(ox) <= cols.max()
+
+
+def test_a_terminated_plan_push_leaves_no_meshcat_server_behind(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    obs = PushWorld(load_scenario("tiny")).reset(0)
+    x, y, yaw = obs.object_poses[0]
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from se3push.plan_push import main; sys.exit(main())",
+         "--goal", str(x), str(y + 0.05),
+         str(math.degrees(yaw)), "--scenario", "tiny", "--model", "oracle", "--max-steps", "60",
+         "--record", str(tmp_path / "push.html")],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+    )  # fmt: skip
+    try:
+        while not proc.stdout.readline().startswith("step"):  # the server is up: it steps
+            assert proc.poll() is None
+        children = [int(p.name) for p in Path("/proc").iterdir() if p.name.isdigit()
+                    and _parent(p) == proc.pid]  # fmt: skip
+        assert children  # meshcat's server
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 128 + signal.SIGTERM
+    finally:
+        proc.kill()
+    for pid in children:  # ended, not orphaned to init
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            continue
+        assert _parent(Path(f"/proc/{pid}")) != 1, f"meshcat's server {pid} outlived plan-push"
+
+
+def _parent(proc_dir) -> int | None:
+    try:
+        for line in (proc_dir / "status").read_text().splitlines():
+            if line.startswith("PPid:"):
+                return int(line.split()[1])
+    except OSError:
+        return None
+    return None
