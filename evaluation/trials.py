@@ -76,6 +76,16 @@ def draw_trial(scenario: Scenario, seed: int, i: int) -> dict[str, Any]:
     """Trial i of the set: the world's reset seed, the object's start pose and the goal."""
     rng = np.random.default_rng([seed, i, 7])
     reset_seed = int(rng.integers(1 << 31))
+    start, goal = draw_goal(scenario, reset_seed, rng)
+    return {"trial": i, "reset_seed": reset_seed, "start": start.tolist(), "goal": goal.tolist()}
+
+
+def draw_goal(
+    scenario: Scenario, reset_seed: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pushed object's start pose in the world reset with ``reset_seed``, and a goal drawn
+    with ``rng`` that the scenario's ``goals`` allow from it (far or turned enough, not too
+    far)."""
     world = PushWorld(scenario)
     start = world.reset(reset_seed).object_poses[0]
     period = world.objects[0].yaw_period_rad  # success measures the turn with this symmetry
@@ -85,12 +95,7 @@ def draw_trial(scenario: Scenario, seed: int, i: int) -> dict[str, Any]:
         goal = np.array([rng.uniform(x0, x1), rng.uniform(y0, y1), rng.uniform(-math.pi, math.pi)])
         dist, turn = pose_errors(goal, start, period)
         if dist <= g.max_distance_m and (dist >= g.min_distance_m or turn >= g.min_yaw_deg):
-            return {
-                "trial": i,
-                "reset_seed": reset_seed,
-                "start": start.tolist(),
-                "goal": goal.tolist(),
-            }
+            return start, goal
     raise InputError(
         f"scenario {scenario.name}: no goal satisfies goals.* from start {start.tolist()}"
     )

@@ -41,12 +41,12 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from evaluation.trials import draw_trial
+from evaluation.trials import draw_goal, draw_trial
 from planner.loop import TIGHT, PushConfig, check_reachable, push_planner, push_scenario, within
 from planner.observe import plan_state
 from planner.settings import PlanSettings
 from sim import Observation, PushWorld
-from sim.planar import pose_errors
+from sim.planar import pose_errors, wrap_angle
 
 ENV_ID = "se3push/Push-v0"
 FAR_M = 10.0
@@ -61,8 +61,10 @@ class PushEnv(gymnasium.Env):
         max_steps: actions before the episode is truncated (``--max-steps``).
 
     ``reset(options=...)`` takes ``world_seed`` (the world's reset seed) and ``goal`` (x_m,
-    y_m, yaw_rad) to pose a given push; without them both come from a trial drawn with the
-    environment's random generator (seeded by ``reset(seed=...)``).
+    y_m, yaw_rad; the yaw is wrapped into [-pi, pi)) to pose a given push; what is not given
+    comes from the environment's random generator (seeded by ``reset(seed=...)``): a trial
+    drawn as ``se3push trials`` draws them, or, given a ``world_seed`` alone, a goal drawn
+    from that world's start as a trial's is.
     """
 
     metadata: dict[str, Any] = {"render_modes": []}
@@ -99,9 +101,14 @@ class PushEnv(gymnasium.Env):
         options = options or {}
         trial = draw_trial(self.scenario, int(self.np_random.integers(1 << 31)), 0)
         self.world_seed = int(options.get("world_seed", trial["reset_seed"]))
-        goal = tuple(float(g) for g in options.get("goal", trial["goal"]))
+        if "goal" in options:
+            goal = tuple(float(g) for g in options["goal"])
+        elif "world_seed" in options:  # a goal for this world's start, not the trial's
+            goal = tuple(draw_goal(self.scenario, self.world_seed, self.np_random)[1])
+        else:
+            goal = tuple(trial["goal"])
         check_reachable(self.scenario, goal)
-        self.goal = np.array(goal)
+        self.goal = np.array([goal[0], goal[1], wrap_angle(goal[2])])  # yaw in [-pi, pi)
         self.obs = self.world.reset(self.world_seed)
         self.steps, self.episode = 0, self.episode + 1
         return self._observation(), self._info()

@@ -71,3 +71,24 @@ def test_bad_settings_are_refused():
     env = PushEnv("tiny")
     with pytest.raises(InputError, match="outside the reachable region"):
         env.reset(options={"goal": (5.0, 0.0, 0.0)})
+
+
+def test_a_world_seed_alone_gets_a_goal_drawn_for_that_worlds_start():
+    from scenarios import load_scenario
+    from sim.planar import pose_errors
+
+    env, goals = PushEnv("single_box"), load_scenario("single_box").goals
+    for seed in range(40):  # none starts within the goal's tolerance, as no trial does
+        obs, _ = env.reset(seed=seed, options={"world_seed": 5})
+        dist, turn = pose_errors(obs["goal"], obs["object_pose"],
+                                 env.world.objects[0].yaw_period_rad)  # fmt: skip
+        assert dist <= goals.max_distance_m + 1e-6
+        assert dist >= goals.min_distance_m or turn >= goals.min_yaw_deg
+
+
+def test_a_given_goals_yaw_is_wrapped_into_the_observation_space():
+    env = PushEnv("single_box")
+    for yaw in (4.0, -7.0):
+        obs, _ = env.reset(seed=0, options={"world_seed": 0, "goal": (0.05, 0.0, yaw)})
+        assert env.observation_space.contains(obs)
+        assert abs(obs["goal"][2] - np.arctan2(np.sin(yaw), np.cos(yaw))) < 1e-6
