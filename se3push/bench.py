@@ -40,9 +40,8 @@ def bench_world(*, repeats: int) -> dict[str, float]:
     world.reset(0)
     rng = np.random.default_rng(0)
 
-    def control_step() -> None:
-        nonlocal world
-        if world.observe().done:
+    def control_step() -> None:  # one step renders once: its observation
+        if world.ended:
             world.reset(int(rng.integers(1 << 30)))
         world.step(rng.uniform(-0.1, 0.1, size=2))
 
