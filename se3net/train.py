@@ -319,8 +319,12 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
         for key, unused in RETIRED_SETTINGS.items():  # options retired since, if not used
             if key in run_cfg and run_cfg[key] == unused:
                 del run_cfg[key]
-        if run_cfg != asdict(cfg):
-            diffs = differences(run_cfg, asdict(cfg), old_has="the run has")
+        # where the folders are is not a setting: the data hash (below) checks what they hold,
+        # in order, so a path spelt another way, or a moved run, resumes
+        asked = {k: v for k, v in asdict(cfg).items() if k not in ("data", "out")}
+        run_cfg = {k: v for k, v in run_cfg.items() if k not in ("data", "out")}
+        if run_cfg != asked:
+            diffs = differences(run_cfg, asked, old_has="the run has")
             raise InputError(
                 f"--resume with other settings than the run's ({'; '.join(diffs)}); "
                 "use the original ones"

@@ -384,3 +384,21 @@ def test_a_fine_tuned_model_remembers_the_data_its_start_learnt_from(tiny_data, 
         refuse_trained_on([tuned], read_manifest(other), other)
     with pytest.raises(CheckpointError, match="was trained on"):  # and it from tiny_data
         refuse_trained_on([tuned], read_manifest(tiny_data), tiny_data)
+
+
+def test_a_moved_run_resumes_with_its_data_spelt_another_way(tiny_data, tmp_path, monkeypatch):
+    real, calls = train_mod.validate, []
+
+    def interrupt(*args, **kw):  # killed at the second evaluation
+        if calls:
+            raise KeyboardInterrupt
+        calls.append(1)
+        return real(*args, **kw)
+
+    monkeypatch.setattr(train_mod, "validate", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        train(_cfg(tiny_data, tmp_path / "run"), progress=False)
+    monkeypatch.setattr(train_mod, "validate", real)
+    (tmp_path / "run").rename(tmp_path / "moved")
+    train(_cfg(f"{tiny_data}/.", tmp_path / "moved"), resume=True, progress=False)
+    assert read_checkpoint(tmp_path / "moved" / "last.pt")["train_state"]["iteration"] == 8
