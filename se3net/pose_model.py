@@ -277,6 +277,9 @@ def train_pose_model(
             with torch.no_grad():
                 seen = model.rollout(val.pose[:, 0], val.pusher, val.actions, val.support)
             v = float(pose_loss(seen, val.pose[:, 1:]))
+            if not math.isfinite(v):  # training's loss was finite, the validation's is not
+                raise TrainingDiverged(f"the validation loss is {v} at step {it}; nothing was "
+                                       "written: run again with a lower --lr")  # fmt: skip
             if v < best:
                 best = v
                 metrics = {"iteration": it, "val_loss": v, **rollout_error(model, val, seen)}

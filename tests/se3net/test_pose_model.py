@@ -113,6 +113,23 @@ def test_a_folder_another_process_is_writing_is_refused(tiny_data, tmp_path):
     assert not (out / "best.pt").exists()
 
 
+def test_a_validation_loss_that_is_not_finite_stops_the_training(tiny_data, tmp_path, monkeypatch):
+    import se3net.pose_model as pose_mod
+    from se3net.train import TrainingDiverged
+
+    real, calls = pose_mod.pose_loss, []
+
+    def nan_at_validation(*args):  # steps 1..20 train, the 21st call validates
+        calls.append(1)
+        return real(*args) * (float("nan") if len(calls) == 21 else 1.0)
+
+    monkeypatch.setattr(pose_mod, "pose_loss", nan_at_validation)
+    with pytest.raises(TrainingDiverged, match="the validation loss is nan at step 20"):
+        train_pose_model([str(tiny_data)], tmp_path / "run", iters=20, batch=64, horizon=4,
+                         progress=False)  # fmt: skip
+    assert not (tmp_path / "run" / "best.pt").exists()
+
+
 def test_a_diverged_training_stops_saying_so_and_writes_nothing(tiny_data, tmp_path):
     from se3net.train import TrainingDiverged
 
