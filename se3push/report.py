@@ -49,7 +49,8 @@ def inspect_data(root: str | Path) -> str:
         f"(true flow > {st['moving_threshold_m'] * 1e3:.1f} mm)",
         f"  flow of moving pts  mean {st['mean_flow_m'] * 1e3:.2f} mm, "
         f"95th percentile {st['p95_flow_m'] * 1e3:.2f} mm",
-        f"  no-motion MSE       {st['no_motion_mse_cm2']:.3f} cm^2 (the paper's metric, h = 1)",
+        f"  no-motion MSE       {st['no_motion_mse_cm2']:.3f} cm^2 (h = 1; every moving point, "
+        "seen or not: eval's counts the seen ones)",
         f"  QP failures         {st['qp_failures']}",
         f"  picture             {png} (episode, t: {shown})",
     ]

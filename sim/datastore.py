@@ -108,7 +108,9 @@ def frame_cloud(
 
 
 def summarize(manifest: dict[str, Any]) -> dict[str, Any]:
-    """Headline statistics of a dataset from its manifest (one-step flow)."""
+    """Headline statistics of a dataset from its manifest (one-step flow over every point
+    whose true flow is non-zero, seen by the camera or not; ``se3push eval`` measures the
+    seen ones, so its no-motion figure differs a little from ``no_motion_mse_cm2``)."""
     st = manifest["stats"]
     n = max(st["moving_points"], 1)
     hist = np.asarray(st["flow_hist"], float)
