@@ -50,22 +50,27 @@ def _cfg(tiny_data, out, **kw) -> TrainConfig:
     return TrainConfig(**{**base, **kw})
 
 
-def test_resume_gives_the_same_weights_as_an_uninterrupted_run(tiny_data, tmp_path, monkeypatch):
-    train(_cfg(tiny_data, tmp_path / "a"), progress=False)
-    real = train_mod.validate
-    calls = []
+def _killed_at_the_second_evaluation(cfg: TrainConfig, monkeypatch) -> None:
+    """Train ``cfg`` (evaluated every 4 of 8 steps) until a KeyboardInterrupt at its second
+    evaluation, as a kill after the first's checkpoint would leave it."""
+    real, calls = train_mod.validate, []
 
     def interrupt(*args, **kw):
-        if len(calls) == 1:
+        if calls:
             raise KeyboardInterrupt
         calls.append(1)
         return real(*args, **kw)
 
     monkeypatch.setattr(train_mod, "validate", interrupt)
     with pytest.raises(KeyboardInterrupt):
-        train(_cfg(tiny_data, tmp_path / "b"), progress=False)
-    assert read_checkpoint(tmp_path / "b" / "last.pt")["train_state"]["iteration"] == 4
+        train(cfg, progress=False)
     monkeypatch.setattr(train_mod, "validate", real)
+
+
+def test_resume_gives_the_same_weights_as_an_uninterrupted_run(tiny_data, tmp_path, monkeypatch):
+    train(_cfg(tiny_data, tmp_path / "a"), progress=False)
+    _killed_at_the_second_evaluation(_cfg(tiny_data, tmp_path / "b"), monkeypatch)
+    assert read_checkpoint(tmp_path / "b" / "last.pt")["train_state"]["iteration"] == 4
     with pytest.raises(FileExistsError, match="--resume"):
         train(_cfg(tiny_data, tmp_path / "b"), progress=False)
     with open(tmp_path / "b" / "metrics.jsonl", "a") as f:  # killed while logging iteration 8
@@ -387,18 +392,7 @@ def test_a_fine_tuned_model_remembers_the_data_its_start_learnt_from(tiny_data, 
 
 
 def test_a_moved_run_resumes_with_its_data_spelt_another_way(tiny_data, tmp_path, monkeypatch):
-    real, calls = train_mod.validate, []
-
-    def interrupt(*args, **kw):  # killed at the second evaluation
-        if calls:
-            raise KeyboardInterrupt
-        calls.append(1)
-        return real(*args, **kw)
-
-    monkeypatch.setattr(train_mod, "validate", interrupt)
-    with pytest.raises(KeyboardInterrupt):
-        train(_cfg(tiny_data, tmp_path / "run"), progress=False)
-    monkeypatch.setattr(train_mod, "validate", real)
+    _killed_at_the_second_evaluation(_cfg(tiny_data, tmp_path / "run"), monkeypatch)
     (tmp_path / "run").rename(tmp_path / "moved")
     train(_cfg(f"{tiny_data}/.", tmp_path / "moved"), resume=True, progress=False)
     assert read_checkpoint(tmp_path / "moved" / "last.pt")["train_state"]["iteration"] == 8
