@@ -282,7 +282,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--model",
         default="default",
-        help="default, a checkpoint path, checkpoints joined by + (ensemble), oracle or no-motion",
+        help="default (the shipped SE3-Net), pose (the shipped pose model), single_box or "
+        "single_box_64 (earlier shipped models), a checkpoint path, checkpoints joined by + "
+        "(ensemble), oracle or no-motion",
     )
     planning_options(s)
     s.add_argument("--threads", type=int, default=None,

@@ -31,8 +31,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--model",
         default="default",
-        help="default (shipped), a checkpoint path, checkpoints joined by + (an ensemble whose "
-        "disagreement the cost penalises), oracle or no-motion",
+        help="default (the shipped SE3-Net), pose (the shipped pose model), single_box or "
+        "single_box_64 (earlier shipped models), a checkpoint path, checkpoints joined by + (an "
+        "ensemble whose disagreement the cost penalises), oracle or no-motion",
     )
     planning_options(p)
     tolerance_option(p)
