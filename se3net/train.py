@@ -287,7 +287,7 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
     dt = ds.scenario.action.dt_control_s
     # what the weights learnt from: this run's data, and with --init the data its start did
     # (so that --split all refuses a fine-tuned model on its starting point's data too)
-    data_hash = "+".join(manifest_hash(m) for m in ds.manifests)
+    data_hash = own_hash = "+".join(manifest_hash(m) for m in ds.manifests)
     cam = ds.scenario.camera
     mcfg = ModelConfig(
         variant=cfg.variant,
@@ -335,7 +335,7 @@ def _train(cfg: TrainConfig, ranks: Ranks, *, resume: bool, progress: bool) -> d
                 f"{state.get('world_size', 1)}; resume it with torchrun --nproc_per_node "
                 f"{state.get('world_size', 1)} (1: plain se3push train) to continue it exactly"
             )
-        if blob["data_hash"] != data_hash:
+        if blob["data_hash"] not in (data_hash, own_hash):  # own: a run from before --init's
             raise InputError(
                 f"--resume with other data than the run was trained on ({cfg.data} changed)"
             )

@@ -391,6 +391,26 @@ def test_a_fine_tuned_model_remembers_the_data_its_start_learnt_from(tiny_data, 
         refuse_trained_on([tuned], read_manifest(tiny_data), tiny_data)
 
 
+def test_a_fine_tuning_run_from_before_its_start_was_recorded_resumes(tiny_data, tmp_path,
+                                                                       monkeypatch):  # fmt: skip
+    from se3net.checkpoint import manifest_hash
+    from sim.dataset import DataConfig, generate
+    from sim.datastore import read_manifest
+
+    other = tmp_path / "other"  # the start learnt from other data than the fine-tuning's
+    generate(DataConfig("tiny", episodes=21, steps_per_episode=8, episodes_per_shard=7, seed=5),
+             other, progress=False)  # fmt: skip
+    train(_cfg(other, tmp_path / "start", iters=4), progress=False)
+    cfg = _cfg(tiny_data, tmp_path / "tuned", init=str(tmp_path / "start" / "best.pt"))
+    _killed_at_the_second_evaluation(cfg, monkeypatch)
+    last = tmp_path / "tuned" / "last.pt"
+    blob = read_checkpoint(last)
+    blob["data_hash"] = manifest_hash(read_manifest(tiny_data))  # as such runs recorded it
+    torch.save(blob, last)
+    train(cfg, resume=True, progress=False)
+    assert read_checkpoint(last)["train_state"]["iteration"] == 8
+
+
 def test_a_moved_run_resumes_with_its_data_spelt_another_way(tiny_data, tmp_path, monkeypatch):
     _killed_at_the_second_evaluation(_cfg(tiny_data, tmp_path / "run"), monkeypatch)
     (tmp_path / "run").rename(tmp_path / "moved")
