@@ -10,7 +10,7 @@ identity; the transform layer blends them with the masks (paper, Eq. 3):
 
 with pivots ``c_i`` the mask-weighted centroid of the input points. The paper pivots about
 the camera origin (``c_i = 0``); both span the same motions, but about the centroid the
-translation is the mask's own motion, which trains better (see REFERENCE.md); the origin was
+translation is the mask's own motion, which trains better (docs/model.md); the origin was
 tried and not kept (commit c7fec27 has it).
 
 Weight sharpening (paper, Eq. 2): ``m' = normalise((m + eps)^gamma)``, ``eps ~ N(0, sigma^2)``,
@@ -103,7 +103,7 @@ class Encoding(NamedTuple):
     z: torch.Tensor
     """(B,256) the cloud's code"""
     x: torch.Tensor
-    """(B,C,H,W) the network's input (the normalised cloud, and its validity channel)"""
+    """(B,3,H,W) the network's input: the normalised cloud, zero at pixels without a point"""
 
 
 def _block(conv: nn.Module, channels: int, *, pool: bool = False) -> nn.Sequential:

@@ -101,6 +101,10 @@ class DepthCamera:
             model, data, self._origin, self._rays_world.reshape(-1), self._groups, 1, -1,
             self._geom, self._dist, None, n, self.max_depth_m,
         )  # fmt: skip
+        # mj_multiRay's cutoff only skips geoms whose bounds lie beyond it: a hit beyond
+        # max_depth_m on a nearer geom comes back too, and counts as nothing here
+        beyond = self._dist > self.max_depth_m
+        self._geom[beyond] = -1
         valid = self._geom >= 0
         dist = np.where(valid, self._dist, 0.0)
         points = (self._rays_cam * dist[:, None]).T.reshape(3, self.height, self.width)

@@ -82,7 +82,7 @@ class Observation:
     points_part: np.ndarray
     """(3,H,W) float64, each pixel's point in its part's frame (for associations)."""
     T_world_part: np.ndarray
-    """(P,4,4) poses of the parts, P = 2 + number of objects."""
+    """(P,4,4) poses of the parts, P = 2 + the objects + the arm's visible links."""
     object_poses: np.ndarray
     """(n,3) planar pose (x_m, y_m, yaw_rad) of each object."""
     pusher_xy_m: np.ndarray

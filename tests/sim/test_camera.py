@@ -54,3 +54,18 @@ def test_segmentation_labels_the_right_bodies(tiny_world):
     radial = np.linalg.norm(obs.points_part[:2, obs.part == 1], axis=0)
     assert np.all(radial <= r + 1e-6)
     assert not obs.valid[obs.part == -1].any() and obs.valid[obs.part >= 0].all()
+
+
+def test_no_point_lies_beyond_the_cameras_range(tiny):
+    world = PushWorld(tiny)
+    world.reset(3)
+    full = world.camera.render(world.model, world.data)
+    ranges = np.linalg.norm(full.points_cam, axis=0)[full.valid]
+    cut = float(np.quantile(ranges, 0.5))  # a range that ends inside the scene
+    world.camera.max_depth_m = cut
+    near = world.camera.render(world.model, world.data)
+    assert np.linalg.norm(near.points_cam, axis=0)[near.valid].max() <= cut + 1e-9
+    assert (near.geom_id[~near.valid] == -1).all()
+    # what lies within the range is seen as before
+    within = full.valid & (np.linalg.norm(full.points_cam, axis=0) <= cut)
+    assert (near.valid == within).all()
