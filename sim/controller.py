@@ -168,7 +168,10 @@ def planar_arm_reach(scenario: Scenario, xy_m: np.ndarray) -> np.ndarray:
     a = scenario.arm
     l1, l2, down = _arm_geometry(scenario)
     dx, dy = xy_m[..., 0] - a.base_xy_m[0], xy_m[..., 1] - a.base_xy_m[1]
-    r = np.hypot(dx, dy)
+    # the reach along the line: at the working height the arm spans |l1 - l2| to l1 + l2 from
+    # the shoulder, so r outside it is clipped (else the tip rose above the working height)
+    r_min = np.sqrt(max((l1 - l2) ** 2 - down * down, 0.0))
+    r = np.clip(np.hypot(dx, dy), r_min, np.sqrt((l1 + l2) ** 2 - down * down))
     c2 = np.clip((r * r + down * down - l1 * l1 - l2 * l2) / (2 * l1 * l2), -1.0, 1.0)
     p2 = np.arccos(c2)
     p1 = np.arctan2(down, r) - np.arctan2(l2 * np.sin(p2), l1 + l2 * np.cos(p2))

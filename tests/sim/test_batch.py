@@ -28,6 +28,19 @@ def test_the_arms_closed_form_kinematics_invert_each_other():
     np.testing.assert_allclose(planar_arm_xy(s, planar_arm_reach(s, xy)), xy, atol=1e-12)
 
 
+def test_a_point_out_of_reach_gets_the_angles_of_the_nearest_reachable_one_on_its_line():
+    s = load_scenario("single_box")
+    a = s.arm
+    l1, l2 = a.link_lengths_m
+    down = a.shoulder_height_m - (a.pusher_clearance_m + a.pusher_length_m)
+    edge = np.sqrt((l1 + l2) ** 2 - down**2)  # the farthest the tip reaches at working height
+    way = np.array([np.cos(0.3), np.sin(0.3)])
+    far = np.array(a.base_xy_m) + (edge + np.array([0.05, 0.2]))[:, None] * way
+    np.testing.assert_allclose(planar_arm_reach(s, far),
+                               planar_arm_reach(s, np.array(a.base_xy_m) + edge * way)[None]
+                               .repeat(2, 0), atol=1e-12)  # fmt: skip
+
+
 def test_batched_pushes_land_where_the_controller_takes_them():
     """Pushes of held-out objects 8 steps long, from a random side: the batched rollout's
     object ends within what the simulator's own sensitivity gives (a nudge of the servos by a
