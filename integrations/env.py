@@ -99,14 +99,17 @@ class PushEnv(gymnasium.Env):
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         super().reset(seed=seed)
         options = options or {}
-        trial = draw_trial(self.scenario, int(self.np_random.integers(1 << 31)), 0)
-        self.world_seed = int(options.get("world_seed", trial["reset_seed"]))
-        if "goal" in options:
-            goal = tuple(float(g) for g in options["goal"])
-        elif "world_seed" in options:  # a goal for this world's start, not the trial's
-            goal = tuple(draw_goal(self.scenario, self.world_seed, self.np_random)[1])
+        trial_seed = int(self.np_random.integers(1 << 31))  # drawn always: one stream of resets
+        if "world_seed" in options:
+            self.world_seed = int(options["world_seed"])
+            if "goal" not in options:  # a goal for this world's start
+                options = {**options, "goal": draw_goal(self.scenario, self.world_seed,
+                                                        self.np_random)[1]}  # fmt: skip
         else:
-            goal = tuple(trial["goal"])
+            trial = draw_trial(self.scenario, trial_seed, 0)
+            self.world_seed = trial["reset_seed"]
+            options = {"goal": trial["goal"], **options}
+        goal = tuple(float(g) for g in options["goal"])
         check_reachable(self.scenario, goal)
         self.goal = np.array([goal[0], goal[1], wrap_angle(goal[2])])  # yaw in [-pi, pi)
         self.obs = self.world.reset(self.world_seed)
