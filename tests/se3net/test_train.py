@@ -373,17 +373,28 @@ def test_a_negative_keep_every_is_refused():
         TrainConfig(data="d", out="o", keep_every=-1)
 
 
-def test_a_fine_tuned_model_remembers_the_data_its_start_learnt_from(tiny_data, tmp_path):
-    from se3net.checkpoint import refuse_trained_on
+@pytest.fixture(scope="module")
+def start_on_other_data(tmp_path_factory):
+    """A tiny dataset other than ``tiny_data``, and a checkpoint trained on it (a start to
+    fine-tune from)."""
     from sim.dataset import DataConfig, generate
-    from sim.datastore import read_manifest
 
-    other = tmp_path / "other"
+    root = tmp_path_factory.mktemp("other")
+    other = root / "data"
     generate(DataConfig("tiny", episodes=21, steps_per_episode=8, episodes_per_shard=7, seed=5),
              other, progress=False)  # fmt: skip
-    train(_cfg(other, tmp_path / "start", iters=4), progress=False)
-    train(_cfg(tiny_data, tmp_path / "tuned", iters=4, init=str(tmp_path / "start" / "best.pt")),
-          progress=False)  # fmt: skip
+    train(_cfg(other, root / "start", iters=4), progress=False)
+    return other, root / "start" / "best.pt"
+
+
+def test_a_fine_tuned_model_remembers_the_data_its_start_learnt_from(
+    tiny_data, tmp_path, start_on_other_data
+):
+    from se3net.checkpoint import refuse_trained_on
+    from sim.datastore import read_manifest
+
+    other, start = start_on_other_data
+    train(_cfg(tiny_data, tmp_path / "tuned", iters=4, init=str(start)), progress=False)
     tuned = tmp_path / "tuned" / "best.pt"
     with pytest.raises(CheckpointError, match="was trained on"):  # its start learnt from other
         refuse_trained_on([tuned], read_manifest(other), other)
@@ -391,17 +402,14 @@ def test_a_fine_tuned_model_remembers_the_data_its_start_learnt_from(tiny_data, 
         refuse_trained_on([tuned], read_manifest(tiny_data), tiny_data)
 
 
-def test_a_fine_tuning_run_from_before_its_start_was_recorded_resumes(tiny_data, tmp_path,
-                                                                       monkeypatch):  # fmt: skip
+def test_a_fine_tuning_run_from_before_its_start_was_recorded_resumes(
+    tiny_data, tmp_path, monkeypatch, start_on_other_data
+):
     from se3net.checkpoint import manifest_hash
-    from sim.dataset import DataConfig, generate
     from sim.datastore import read_manifest
 
-    other = tmp_path / "other"  # the start learnt from other data than the fine-tuning's
-    generate(DataConfig("tiny", episodes=21, steps_per_episode=8, episodes_per_shard=7, seed=5),
-             other, progress=False)  # fmt: skip
-    train(_cfg(other, tmp_path / "start", iters=4), progress=False)
-    cfg = _cfg(tiny_data, tmp_path / "tuned", init=str(tmp_path / "start" / "best.pt"))
+    _, start = start_on_other_data  # it learnt from other data than the fine-tuning's
+    cfg = _cfg(tiny_data, tmp_path / "tuned", init=str(start))
     _killed_at_the_second_evaluation(cfg, monkeypatch)
     last = tmp_path / "tuned" / "last.pt"
     blob = read_checkpoint(last)
